@@ -1,0 +1,1 @@
+"""racer.common — see DESIGN.md for what this package owns."""

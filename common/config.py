@@ -1,0 +1,69 @@
+"""Configuration models shared by the process roles (pydantic).
+
+Every field carries a docstring with its unit. The environment's randomization is configured
+per env, so that each rollout worker can have its own.
+"""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class AugmentationConfig(_Strict):
+    """Image augmentations of the DeepRacer paper's Table II, each applied with a probability per frame."""
+
+    color_prob: float = Field(0.0, ge=0, le=1)
+    """Probability of a random colour jitter (hue, saturation, brightness, contrast) on a frame."""
+    hue_max_deg: float = Field(18.0, ge=0, le=180)
+    """Largest hue shift, degrees."""
+    saturation_max: float = Field(0.3, ge=0, le=1)
+    """Largest relative saturation change (0.3 = ±30 %)."""
+    brightness_max: float = Field(0.3, ge=0, le=1)
+    """Largest relative brightness change (0.3 = ±30 %)."""
+    contrast_max: float = Field(0.3, ge=0, le=1)
+    """Largest relative contrast change (0.3 = ±30 %)."""
+    translate_prob: float = Field(0.0, ge=0, le=1)
+    """Probability of a horizontal translation of a frame."""
+    translate_max_px: int = Field(10, ge=0, le=80)
+    """Largest horizontal shift, pixels of the 160-pixel-wide frame."""
+    shadow_prob: float = Field(0.0, ge=0, le=1)
+    """Probability of a random polygonal shadow on a frame."""
+    shadow_darkness: float = Field(0.5, ge=0, le=1)
+    """Brightness multiplier inside a shadow is drawn from [1 - darkness, 1]."""
+    salt_pepper_prob: float = Field(0.0, ge=0, le=1)
+    """Probability of salt-and-pepper noise on a frame."""
+    salt_pepper_amount: float = Field(0.02, ge=0, le=0.5)
+    """Fraction of pixels set to black or white when the noise is applied."""
+
+
+class RandomizationConfig(_Strict):
+    """Domain randomization of one env. All off by default except the random start position."""
+
+    random_start: bool = True
+    """Start each episode at a random waypoint; False = round-robin over the track."""
+    round_robin_divisions: int = Field(20, ge=1)
+    """With round-robin starts, the lap is split into this many start points (DeepRacer: 20 episodes)."""
+    reverse_prob: float = Field(0.0, ge=0, le=1)
+    """Probability of driving the track in the reverse direction in an episode."""
+    action_noise: float = Field(0.0, ge=0, le=1)
+    """Uniform noise on each command, as a fraction of it (0.1 = ±10 % of steering and speed)."""
+    lighting: float = Field(0.0, ge=0, le=1)
+    """Lighting variation per episode: overall brightness ±this fraction, plus a light gradient."""
+    track_color: float = Field(0.0, ge=0, le=1)
+    """Colour variation per episode of road, lines and background (0 = DeepRacer colours, 1 = any)."""
+    texture: float = Field(0.0, ge=0, le=1)
+    """Strength of random noise texture on road and background per episode (0 = flat colours)."""
+    camera_jitter_m: float = Field(0.0, ge=0, le=0.05)
+    """Camera position jitter per episode, metres (each axis)."""
+    camera_jitter_deg: float = Field(0.0, ge=0, le=10)
+    """Camera orientation jitter per episode, degrees (pitch, yaw, roll)."""
+    friction: float = Field(0.0, ge=0, le=0.9)
+    """Tyre friction scaled per episode by a factor in [1 - f, 1 + f]."""
+    mass: float = Field(0.0, ge=0, le=0.9)
+    """Car mass scaled per episode by a factor in [1 - m, 1 + m]."""
+    augment: AugmentationConfig = Field(default_factory=AugmentationConfig)
+    """Per-frame image augmentations."""

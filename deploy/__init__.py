@@ -1,0 +1,1 @@
+"""racer.deploy — see DESIGN.md for what this package owns."""

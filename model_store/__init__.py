@@ -1,0 +1,1 @@
+"""racer.model_store — see DESIGN.md for what this package owns."""

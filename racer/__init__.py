@@ -1,0 +1,1 @@
+"""racer command line (thin: each command parses options and calls one function)."""

@@ -1,0 +1,1 @@
+"""racer.rollout_worker — see DESIGN.md for what this package owns."""

@@ -1,0 +1,264 @@
+"""DeepRacer tracks: loading, validation and the geometry the task needs.
+
+A track file is a DeepRacer ``.npy`` waypoint array of shape (N, 6):
+``center_x, center_y, inner_x, inner_y, outer_x, outer_y`` in metres, where "inner" is the
+border inside the loop. A closed loop repeats its first row as its last; an open track
+(Straight_track) does not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+MIN_WAYPOINTS = 5
+_CLOSE_TOL_M = 1e-3
+
+
+class TrackError(ValueError):
+    """A track file that cannot be used; the message names the file and what is wrong."""
+
+
+def bundled_track_names() -> list[str]:
+    """Names of the DeepRacer tracks shipped with the package, sorted."""
+    folder = resources.files("sim") / "tracks"
+    return sorted(p.name[:-4] for p in folder.iterdir() if p.name.endswith(".npy"))
+
+
+def resolve_track_path(track: str | Path) -> Path:
+    """Map a bundled track name or a path to an ``.npy`` file to a path; raise TrackError if neither."""
+    path = Path(track)
+    if path.suffix == ".npy" or path.exists():
+        if not path.is_file():
+            raise TrackError(f"track file {str(track)!r} does not exist")
+        return path
+    bundled = resources.files("sim") / "tracks" / f"{track}.npy"
+    if not bundled.is_file():
+        names = ", ".join(bundled_track_names())
+        raise TrackError(f"unknown track {str(track)!r}: give a .npy path or one of {names}")
+    return Path(str(bundled))
+
+
+def load_track(track: str | Path) -> Track:
+    """Load and validate a bundled track by name or a DeepRacer ``.npy`` file by path."""
+    path = resolve_track_path(track)
+    try:
+        raw = np.load(path, allow_pickle=False)
+    except Exception as exc:  # numpy raises several types for unreadable files
+        raise TrackError(f"track file {str(path)!r} is not a readable .npy array: {exc}") from None
+    name = path.stem
+    return Track.from_array(raw, name=name, source=str(path))
+
+
+def _segments_cross(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> np.ndarray:
+    """Pairwise proper-crossing test between segments a (M,2) and b (K,2); returns (M, K) bool."""
+
+    def orient(p, q, r):
+        return (q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1]) - (q[..., 1] - p[..., 1]) * (
+            r[..., 0] - p[..., 0]
+        )
+
+    A0, A1 = a0[:, None, :], a1[:, None, :]
+    B0, B1 = b0[None, :, :], b1[None, :, :]
+    d1, d2 = orient(B0, B1, A0), orient(B0, B1, A1)
+    d3, d4 = orient(A0, A1, B0), orient(A0, A1, B1)
+    return (d1 * d2 < 0) & (d3 * d4 < 0)
+
+
+def _self_crossings(poly: np.ndarray) -> int:
+    """Number of pairs of non-adjacent segments of a polyline that cross each other."""
+    a0, a1 = poly[:-1], poly[1:]
+    cross = _segments_cross(a0, a1, a0, a1)
+    m = len(a0)
+    idx = np.arange(m)
+    near = np.abs(idx[:, None] - idx[None, :]) <= 1
+    near |= (idx[:, None] == 0) & (idx[None, :] == m - 1)
+    near |= (idx[:, None] == m - 1) & (idx[None, :] == 0)
+    return int(np.triu(cross & ~near).sum())
+
+
+def _signed_area(poly: np.ndarray) -> float:
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def _validate(raw: np.ndarray, source: str) -> np.ndarray:
+    """Check shape, values and border geometry; return a float64 copy without repeated rows."""
+    if raw.dtype.kind not in "fiu":
+        raise TrackError(f"track file {source!r}: expected numbers, got dtype {raw.dtype}")
+    if raw.ndim != 2 or raw.shape[1] != 6:
+        raise TrackError(f"track file {source!r}: expected shape (N, 6), got {raw.shape}")
+    arr = raw.astype(np.float64)
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.argwhere(~np.isfinite(arr))[0][0])
+        raise TrackError(f"track file {source!r}: non-finite value (NaN or inf) in row {bad}")
+    keep = np.ones(len(arr), dtype=bool)
+    keep[1:] = np.linalg.norm(np.diff(arr[:, :2], axis=0), axis=1) > 1e-9
+    arr = arr[keep]
+    if len(arr) < MIN_WAYPOINTS:
+        raise TrackError(f"track file {source!r}: {len(arr)} distinct waypoints, need at least {MIN_WAYPOINTS}")
+    width = np.linalg.norm(arr[:, 2:4] - arr[:, 4:6], axis=1)
+    if np.any(width < 0.05):
+        bad = int(np.argmin(width))
+        raise TrackError(f"track file {source!r}: track width {width[bad]:.3f} m at row {bad} is too narrow")
+    for col, label in ((2, "inner"), (4, "outer")):
+        n = _self_crossings(arr[:, col : col + 2])
+        if n:
+            raise TrackError(f"track file {source!r}: the {label} border crosses itself ({n} crossings)")
+    n = int(_segments_cross(arr[:-1, 2:4], arr[1:, 2:4], arr[:-1, 4:6], arr[1:, 4:6]).sum())
+    if n:
+        raise TrackError(f"track file {source!r}: the inner and outer borders cross ({n} crossings)")
+    return arr
+
+
+@dataclass(frozen=True)
+class Projection:
+    """Where points lie relative to the centre line (arrays, one entry per point)."""
+
+    s: np.ndarray
+    """Arc length along the centre line from waypoint 0, metres."""
+    lateral: np.ndarray
+    """Signed distance from the centre line, metres; positive = left of the direction of travel."""
+    segment: np.ndarray
+    """Index of the closest centre-line segment (between waypoints i and i+1)."""
+    t: np.ndarray
+    """Fraction along that segment, 0..1."""
+
+
+@dataclass(frozen=True, eq=False)
+class Track:
+    """A validated DeepRacer track. Geometry is in metres in the track's own frame."""
+
+    name: str
+    waypoints: np.ndarray = field(repr=False)
+    """(N, 6) float64 as in the file: center, inner, outer."""
+    closed: bool
+    source: str = ""
+
+    @classmethod
+    def from_array(cls, raw: np.ndarray, name: str = "track", source: str = "<array>") -> Track:
+        """Validate a DeepRacer waypoint array and build a Track from it."""
+        arr = _validate(np.asarray(raw), source)
+        closed = bool(np.linalg.norm(arr[0, :2] - arr[-1, :2]) < _CLOSE_TOL_M)
+        if closed:
+            arr[-1] = arr[0]
+        return cls(name=name, waypoints=arr, closed=closed, source=source)
+
+    def reversed(self) -> Track:
+        """The same track driven the other way round (inner stays the border inside the loop)."""
+        return Track(self.name, self.waypoints[::-1].copy(), self.closed, self.source)
+
+    @property
+    def center(self) -> np.ndarray:
+        """(N, 2) centre-line waypoints."""
+        return self.waypoints[:, 0:2]
+
+    @property
+    def inner(self) -> np.ndarray:
+        """(N, 2) border inside the loop."""
+        return self.waypoints[:, 2:4]
+
+    @property
+    def outer(self) -> np.ndarray:
+        """(N, 2) border outside the loop."""
+        return self.waypoints[:, 4:6]
+
+    @cached_property
+    def _seg(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        start = self.center[:-1]
+        vec = np.diff(self.center, axis=0)
+        length = np.linalg.norm(vec, axis=1)
+        return start, vec, length
+
+    @cached_property
+    def cumulative(self) -> np.ndarray:
+        """(N,) arc length of each waypoint from waypoint 0, metres."""
+        return np.concatenate([[0.0], np.cumsum(self._seg[2])])
+
+    @property
+    def length(self) -> float:
+        """Length of the centre line, metres (a full lap for a closed track)."""
+        return float(self.cumulative[-1])
+
+    @cached_property
+    def widths(self) -> np.ndarray:
+        """(N,) distance between the borders at each waypoint, metres."""
+        return np.linalg.norm(self.outer - self.inner, axis=1)
+
+    @property
+    def width(self) -> float:
+        """Median track width, metres."""
+        return float(np.median(self.widths))
+
+    @property
+    def clockwise(self) -> bool:
+        """True if a closed track runs clockwise in the file's order."""
+        return self.closed and _signed_area(self.center) < 0
+
+    def project(self, points: np.ndarray) -> Projection:
+        """Project (K, 2) points onto the centre line."""
+        pts = np.atleast_2d(np.asarray(points, dtype=np.float64))
+        start, vec, length = self._seg
+        rel = pts[:, None, :] - start[None, :, :]
+        t = np.clip(np.einsum("kmi,mi->km", rel, vec) / (length**2), 0.0, 1.0)
+        foot = start[None] + t[..., None] * vec[None]
+        dist2 = np.sum((pts[:, None, :] - foot) ** 2, axis=2)
+        seg = np.argmin(dist2, axis=1)
+        k = np.arange(len(pts))
+        tk = t[k, seg]
+        cross = vec[seg, 0] * rel[k, seg, 1] - vec[seg, 1] * rel[k, seg, 0]
+        lateral = np.sign(cross) * np.sqrt(dist2[k, seg])
+        s = self.cumulative[seg] + tk * length[seg]
+        return Projection(s=s, lateral=lateral, segment=seg, t=tk)
+
+    def width_at(self, proj: Projection) -> np.ndarray:
+        """Track width at projected points, interpolated between waypoints."""
+        w = self.widths
+        return (1 - proj.t) * w[proj.segment] + proj.t * w[proj.segment + 1]
+
+    def point_at(self, s: float) -> tuple[np.ndarray, float]:
+        """Centre-line point and heading (radians) at arc length s (wrapped on closed tracks)."""
+        if self.closed:
+            s = s % self.length
+        s = float(np.clip(s, 0.0, self.length))
+        start, vec, length = self._seg
+        seg = int(np.clip(np.searchsorted(self.cumulative, s, side="right") - 1, 0, len(length) - 1))
+        t = (s - self.cumulative[seg]) / length[seg]
+        return start[seg] + t * vec[seg], float(np.arctan2(vec[seg, 1], vec[seg, 0]))
+
+    @cached_property
+    def road_polygons(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """(outline, hole): the road is inside ``outline`` and outside ``hole`` (None for open tracks)."""
+        if self.closed:
+            return self.outer[:-1].copy(), self.inner[:-1].copy()
+        return np.concatenate([self.inner, self.outer[::-1]]), None
+
+    def on_track(self, points: np.ndarray) -> np.ndarray:
+        """(K,) bool: which points lie on the road surface (border lines count as road)."""
+        outline, hole = self.road_polygons
+        pts = np.atleast_2d(np.asarray(points, dtype=np.float64))
+        inside = _points_in_polygon(pts, outline)
+        if hole is not None:
+            inside &= ~_points_in_polygon(pts, hole)
+        return inside
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(min_xy, max_xy) of everything drawn for the track, metres."""
+        xy = self.waypoints.reshape(-1, 2)
+        return xy.min(axis=0), xy.max(axis=0)
+
+
+def _points_in_polygon(pts: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Even-odd rule point-in-polygon test, vectorized over points and edges."""
+    x0, y0 = poly[:, 0], poly[:, 1]
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    px, py = pts[:, 0:1], pts[:, 1:2]
+    straddle = (y0 > py) != (y1 > py)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xcross = x0 + (py - y0) * (x1 - x0) / (y1 - y0)
+    return np.sum(straddle & (px < xcross), axis=1) % 2 == 1

@@ -1,0 +1,1 @@
+"""racer.trainer — see DESIGN.md for what this package owns."""
