@@ -1,0 +1,115 @@
+"""Physics wrapper: named accessors on the MuJoCo car (pose, speed, wheels) and command input."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from sim.world import PHYSICS_SUBSTEPS
+
+WHEEL_RADIUS_M = 0.035
+WHEELBASE_M = 0.164
+TRACK_WIDTH_M = 0.16
+FRONT_POINT_M = 0.14
+"""DeepRacer reports x, y at this distance ahead of base_link (the midpoint between the axles)."""
+MAX_STEERING_DEG = 30.0
+SPEED_RANGE_MPS = (0.1, 4.0)
+_WHEELS = ("fl", "fr", "rl", "rr")
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Planar pose of base_link: position (m) and yaw (rad, counter-clockwise from +x)."""
+
+    x: float
+    y: float
+    yaw: float
+
+    def ahead(self, distance: float) -> np.ndarray:
+        """The point ``distance`` metres ahead along the car's heading."""
+        return np.array([self.x + distance * math.cos(self.yaw), self.y + distance * math.sin(self.yaw)])
+
+
+class CarPhysics:
+    """The car in its world. Commands are steering angle (deg, + = left) and speed (m/s)."""
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self._root_q = model.jnt_qposadr[model.joint("car_root").id]
+        self._root_v = model.jnt_dofadr[model.joint("car_root").id]
+        self._drive = [model.actuator(f"{w}_drive").id for w in _WHEELS]
+        self._steer = [model.actuator(f"{w}_steer").id for w in ("fl", "fr")]
+        self._steer_q = [model.jnt_qposadr[model.joint(f"{w}_steer").id] for w in ("fl", "fr")]
+        self._car_body = model.body("car").id
+        self._tyres = [model.geom(f"{w}_tyre").id for w in _WHEELS]
+        self._tyre_friction = model.geom_friction[self._tyres, 0].copy()
+        self._mass = model.body_mass.copy()
+        self._inertia = model.body_inertia.copy()
+        self._height = float(model.body_pos[self._car_body, 2])
+
+    def reset(self, pose: Pose) -> None:
+        """Place the car at rest at ``pose`` with wheels straight."""
+        mujoco.mj_resetData(self.model, self.data)
+        q = self.data.qpos
+        q[self._root_q : self._root_q + 3] = (pose.x, pose.y, self._height)
+        q[self._root_q + 3 : self._root_q + 7] = (math.cos(pose.yaw / 2), 0.0, 0.0, math.sin(pose.yaw / 2))
+        mujoco.mj_forward(self.model, self.data)
+
+    def set_dynamics(self, friction_scale: float = 1.0, mass_scale: float = 1.0) -> None:
+        """Scale tyre friction and all body masses (domain randomization); 1.0 restores the model."""
+        self.model.geom_friction[self._tyres, 0] = self._tyre_friction * friction_scale
+        self.model.body_mass[:] = self._mass * mass_scale
+        self.model.body_inertia[:] = self._inertia * mass_scale
+
+    def command(self, steering_deg: float, speed_mps: float) -> None:
+        """Set the servo targets: both front hinges to the steering angle, all wheels to the speed."""
+        self.data.ctrl[self._steer] = math.radians(steering_deg)
+        self.data.ctrl[self._drive] = speed_mps / WHEEL_RADIUS_M
+
+    def step(self, substeps: int = PHYSICS_SUBSTEPS) -> None:
+        """Advance the physics by one control period."""
+        mujoco.mj_step(self.model, self.data, nstep=substeps)
+
+    @property
+    def time(self) -> float:
+        """Simulated time since reset, s."""
+        return float(self.data.time)
+
+    @property
+    def pose(self) -> Pose:
+        """Planar pose of base_link."""
+        q = self.data.qpos
+        x, y = q[self._root_q], q[self._root_q + 1]
+        w, qx, qy, qz = q[self._root_q + 3 : self._root_q + 7]
+        yaw = math.atan2(2 * (w * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+        return Pose(float(x), float(y), yaw)
+
+    @property
+    def speed(self) -> float:
+        """Forward speed of base_link along the car's heading, m/s."""
+        v = self.data.qvel[self._root_v : self._root_v + 2]
+        yaw = self.pose.yaw
+        return float(v[0] * math.cos(yaw) + v[1] * math.sin(yaw))
+
+    @property
+    def yaw_rate(self) -> float:
+        """Yaw rate, rad/s."""
+        return float(self.data.qvel[self._root_v + 5])
+
+    @property
+    def steering_deg(self) -> float:
+        """Measured mean front hinge angle, degrees."""
+        return math.degrees(float(np.mean(self.data.qpos[self._steer_q])))
+
+    @property
+    def upright(self) -> bool:
+        """False if the car has tipped over (body z axis more than 60° from vertical)."""
+        return bool(self.data.xmat[self._car_body, 8] > 0.5)
+
+    def wheel_positions(self) -> np.ndarray:
+        """(4, 2) ground positions of the wheel centres (fl, fr, rl, rr), metres."""
+        return self.data.geom_xpos[self._tyres, :2].copy()
