@@ -24,6 +24,8 @@ MARGIN_M = 1.5
 """Background drawn around the track, metres; beyond it the camera sees the background colour."""
 MAX_TEXTURE_PX = 8192
 """Largest texture side, pixels (GPU texture limits); big tracks get a coarser resolution."""
+MAX_TEXTURE_AREA_PX = 6_000_000
+"""Largest texture area, pixels: bounds memory and per-episode recolouring time on big tracks."""
 _SHIFT = 4  # cv2 sub-pixel bits: draw at 1/16-pixel precision so thin lines stay straight
 
 
@@ -74,7 +76,8 @@ class TextureFrame:
         """Frame covering the track plus a margin, at up to ``ppm`` pixels per metre."""
         lo, hi = track.bounds
         lo, hi = lo - MARGIN_M, hi + MARGIN_M
-        ppm = min(ppm, MAX_TEXTURE_PX / float(np.max(hi - lo)))
+        span = hi - lo
+        ppm = min(ppm, MAX_TEXTURE_PX / float(np.max(span)), float(np.sqrt(MAX_TEXTURE_AREA_PX / np.prod(span))))
         w, h = (int(np.ceil(v)) for v in (hi - lo) * ppm)
         return cls(x0=float(lo[0]), y1=float(hi[1]), ppm=ppm, width=w, height=h)
 
@@ -100,28 +103,45 @@ def _fixed(frame: TextureFrame, xy: np.ndarray) -> np.ndarray:
 
 
 def _dashes(track: Track, dash: float) -> list[np.ndarray]:
-    """Centre-line polylines of the dashes, each as (K, 2) metres."""
-    out = []
-    for s0 in np.arange(0.0, track.length - dash * 0.5, 2 * dash):
-        s = np.linspace(s0, min(s0 + dash, track.length), 6)
-        out.append(np.array([track.point_at(v)[0] for v in s]))
-    return out
+    """Centre-line polylines of the dashes, each as (6, 2) metres."""
+    starts = np.arange(0.0, track.length - dash * 0.5, 2 * dash)
+    s = np.minimum(starts[:, None] + np.linspace(0.0, dash, 6)[None, :], track.length)
+    x = np.interp(s, track.cumulative, track.center[:, 0])
+    y = np.interp(s, track.cumulative, track.center[:, 1])
+    return list(np.stack([x, y], axis=-1))
+
+
+def draw_layers(track: Track, frame: TextureFrame) -> np.ndarray:
+    """Draw the track once as coverage weights: (H, W, 4) uint8 of background, road, border, centre line.
+
+    Each pixel's weights sum to 255 (anti-aliased edges are mixtures), so any palette can be applied
+    later by one matrix product (``colorize``) instead of redrawing: that keeps per-episode colour
+    randomization cheap.
+    """
+    one_hot = [(255, 0, 0, 0), (0, 255, 0, 0), (0, 0, 255, 0), (0, 0, 0, 255)]
+    img = np.zeros((frame.height, frame.width, 4), np.uint8)
+    img[:] = one_hot[0]
+    outline, hole = track.road_polygons
+    cv2.fillPoly(img, [_fixed(frame, outline)], one_hot[1], cv2.LINE_AA, _SHIFT)
+    if hole is not None:
+        cv2.fillPoly(img, [_fixed(frame, hole)], one_hot[0], cv2.LINE_AA, _SHIFT)
+    px = lambda metres: max(1, int(round(metres * frame.ppm)))  # noqa: E731
+    borders = [_fixed(frame, b) for b in (track.inner, track.outer)]
+    cv2.polylines(img, borders, track.closed, one_hot[2], px(BORDER_LINE_M), cv2.LINE_AA, _SHIFT)
+    dashes = [_fixed(frame, d) for d in _dashes(track, DASH_M)]
+    cv2.polylines(img, dashes, False, one_hot[3], px(CENTER_LINE_M), cv2.LINE_AA, _SHIFT)
+    return img
+
+
+def colorize(layers: np.ndarray, palette: Palette = DEEPRACER_PALETTE) -> np.ndarray:
+    """Apply a palette to coverage weights from ``draw_layers``: (H, W, 3) RGB uint8."""
+    colours = np.array([palette.background, palette.road, palette.border, palette.center], np.float32)
+    return cv2.transform(layers, colours.T / 255.0)
 
 
 def draw_surface(track: Track, frame: TextureFrame, palette: Palette = DEEPRACER_PALETTE) -> np.ndarray:
     """Draw the track into an RGB uint8 image of ``frame``'s size."""
-    img = np.empty((frame.height, frame.width, 3), np.uint8)
-    img[:] = palette.background
-    outline, hole = track.road_polygons
-    cv2.fillPoly(img, [_fixed(frame, outline)], palette.road, cv2.LINE_AA, _SHIFT)
-    if hole is not None:
-        cv2.fillPoly(img, [_fixed(frame, hole)], palette.background, cv2.LINE_AA, _SHIFT)
-    px = lambda metres: max(1, int(round(metres * frame.ppm)))  # noqa: E731
-    for border in (track.inner, track.outer):
-        cv2.polylines(img, [_fixed(frame, border)], track.closed, palette.border, px(BORDER_LINE_M), cv2.LINE_AA, _SHIFT)
-    dashes = [_fixed(frame, d) for d in _dashes(track, DASH_M)]
-    cv2.polylines(img, dashes, False, palette.center, px(CENTER_LINE_M), cv2.LINE_AA, _SHIFT)
-    return img
+    return colorize(draw_layers(track, frame), palette)
 
 
 def add_noise_texture(img: np.ndarray, strength: float, rng: np.random.Generator) -> np.ndarray:

@@ -1,0 +1,152 @@
+"""DeepRacer action spaces, read from and written to DeepRacer's ``model_metadata.json``.
+
+Discrete: a list of ``{"steering_angle": deg, "speed": m/s}``. Continuous: ranges
+``{"steering_angle": {"low", "high"}, "speed": {"low", "high"}}``. Commands are clipped like
+the DeepRacer simapp: steering to ±30°, speed to [0.1, 4] m/s.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+MAX_STEERING_DEG = 30.0
+MIN_SPEED_MPS = 0.1
+MAX_SPEED_MPS = 4.0
+
+
+class ActionSpaceError(ValueError):
+    """A model_metadata.json that cannot be used; the message names the file and the problem."""
+
+
+class DiscreteAction(BaseModel):
+    """One action of a discrete space."""
+
+    model_config = ConfigDict(extra="ignore")
+    steering_angle: float
+    """Steering angle, degrees, + = left."""
+    speed: float
+    """Speed, m/s."""
+    index: int | None = None
+    """Position in the list (DeepRacer writes it; informative only)."""
+
+
+class Range(BaseModel):
+    """A closed interval."""
+
+    low: float
+    high: float
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Range:
+        if not self.low <= self.high:
+            raise ValueError(f"low {self.low} is above high {self.high}")
+        return self
+
+
+class ContinuousSpace(BaseModel):
+    """Ranges of a continuous space."""
+
+    steering_angle: Range
+    """Steering range, degrees."""
+    speed: Range
+    """Speed range, m/s."""
+
+
+class ActionSpace(BaseModel):
+    """A DeepRacer action space with the rest of model_metadata.json kept as given."""
+
+    model_config = ConfigDict(extra="allow")
+    action_space_type: Literal["discrete", "continuous"] = "discrete"
+    action_space: list[DiscreteAction] | ContinuousSpace = Field(default_factory=list)
+    sensor: list[str] = Field(default_factory=lambda: ["FRONT_FACING_CAMERA"])
+    neural_network: str = "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"
+    training_algorithm: str = "clipped_ppo"
+    version: str = "5"
+
+    @model_validator(mode="after")
+    def _consistent(self) -> ActionSpace:
+        discrete = isinstance(self.action_space, list)
+        if discrete != (self.action_space_type == "discrete"):
+            raise ValueError(f"action_space_type {self.action_space_type!r} does not match the action_space given")
+        if discrete and not self.action_space:
+            raise ValueError("the discrete action_space is empty")
+        values = (
+            [v for a in self.action_space for v in (a.steering_angle, a.speed)]
+            if discrete
+            else [self.action_space.steering_angle.low, self.action_space.steering_angle.high,
+                  self.action_space.speed.low, self.action_space.speed.high]
+        )
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError("an action value is not a finite number")
+        return self
+
+    @property
+    def discrete(self) -> bool:
+        """True for a list of actions."""
+        return self.action_space_type == "discrete"
+
+    @property
+    def n(self) -> int:
+        """Number of discrete actions (0 for a continuous space)."""
+        return len(self.action_space) if self.discrete else 0
+
+    def command(self, action: int | tuple[float, float] | list[float]) -> tuple[float, float]:
+        """The (steering_deg, speed_mps) command for an action index or a continuous pair, clipped."""
+        if self.discrete:
+            i = int(action)  # type: ignore[arg-type]
+            if not 0 <= i < self.n:
+                raise IndexError(f"action {i} is outside 0..{self.n - 1}")
+            a = self.action_space[i]
+            return clip_command(a.steering_angle, a.speed)
+        steer, speed = (float(v) for v in action)  # type: ignore[union-attr]
+        rng = self.action_space
+        steer = min(max(steer, rng.steering_angle.low), rng.steering_angle.high)
+        speed = min(max(speed, rng.speed.low), rng.speed.high)
+        return clip_command(steer, speed)
+
+    def to_json(self) -> str:
+        """model_metadata.json text, as DeepRacer writes it."""
+        return self.model_dump_json(indent=4)
+
+
+def clip_command(steering_deg: float, speed_mps: float) -> tuple[float, float]:
+    """Clip a command to the car's limits, like the DeepRacer simapp."""
+    steer = min(max(float(steering_deg), -MAX_STEERING_DEG), MAX_STEERING_DEG)
+    speed = min(max(float(speed_mps), MIN_SPEED_MPS), MAX_SPEED_MPS)
+    return steer, speed
+
+
+def default_action_space() -> ActionSpace:
+    """DeepRacer's default: 5 steering angles (±30°, ±15°, 0°) × 2 speeds (0.5, 1 m/s) = 10 actions."""
+    actions = [
+        DiscreteAction(steering_angle=s, speed=v, index=2 * i + j)
+        for i, s in enumerate((-30.0, -15.0, 0.0, 15.0, 30.0))
+        for j, v in enumerate((0.5, 1.0))
+    ]
+    return ActionSpace(action_space_type="discrete", action_space=actions)
+
+
+def load_action_space(path: str | Path) -> ActionSpace:
+    """Read a DeepRacer ``model_metadata.json``; raise ActionSpaceError naming the file if it is unusable."""
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise ActionSpaceError(f"action space file {str(p)!r} does not exist") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ActionSpaceError(f"action space file {str(p)!r} is not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise ActionSpaceError(f"action space file {str(p)!r}: expected a JSON object")
+    if "action_space_type" not in data:  # older DeepRacer files have no type: infer it
+        data["action_space_type"] = "continuous" if isinstance(data.get("action_space"), dict) else "discrete"
+    try:
+        return ActionSpace.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(v) for v in err["loc"]) or "file"
+        raise ActionSpaceError(f"action space file {str(p)!r}: {where}: {err['msg']}") from None
