@@ -72,14 +72,20 @@ class ActionSpace(BaseModel):
     def _consistent(self) -> ActionSpace:
         discrete = isinstance(self.action_space, list)
         if discrete != (self.action_space_type == "discrete"):
-            raise ValueError(f"action_space_type {self.action_space_type!r} does not match the action_space given")
+            raise ValueError(
+                f"action_space_type {self.action_space_type!r} does not match the action_space given"
+            )
         if discrete and not self.action_space:
             raise ValueError("the discrete action_space is empty")
         values = (
             [v for a in self.action_space for v in (a.steering_angle, a.speed)]
             if discrete
-            else [self.action_space.steering_angle.low, self.action_space.steering_angle.high,
-                  self.action_space.speed.low, self.action_space.speed.high]
+            else [
+                self.action_space.steering_angle.low,
+                self.action_space.steering_angle.high,
+                self.action_space.speed.low,
+                self.action_space.speed.high,
+            ]
         )
         if not all(math.isfinite(v) for v in values):
             raise ValueError("an action value is not a finite number")

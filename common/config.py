@@ -6,6 +6,8 @@ per env, so that each rollout worker can have its own.
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field
 
 
@@ -67,3 +69,24 @@ class RandomizationConfig(_Strict):
     """Car mass scaled per episode by a factor in [1 - m, 1 + m]."""
     augment: AugmentationConfig = Field(default_factory=AugmentationConfig)
     """Per-frame image augmentations."""
+
+
+class EnvConfig(_Strict):
+    """One simulated world: track, car, camera, reward, actions and randomization."""
+
+    track: str = "reinvent_base"
+    """A bundled DeepRacer track name or a path to a DeepRacer .npy waypoint file."""
+    reward_fn: str | None = None
+    """Path to a DeepRacer reward-function .py file; None = follow the centre line (DeepRacer's example 1)."""
+    action_space: str | None = None
+    """Path to a DeepRacer model_metadata.json; None = DeepRacer's default 10 discrete actions."""
+    camera: Literal["ground", "mujoco"] = "ground"
+    """Camera path: "ground" = fast ground projection of the track texture; "mujoco" = MuJoCo's OpenGL render."""
+    max_episode_steps: int = Field(3000, ge=1)
+    """Time limit, steps at 15 Hz (3000 = 200 s); reaching it truncates the episode."""
+    texture_ppm: float = Field(200.0, gt=10, le=1000)
+    """Resolution of the track texture, pixels per metre (capped on large tracks)."""
+    reward_time_limit_s: float | None = Field(1.0, gt=0)
+    """Per-call time limit of the reward function, seconds; None = none."""
+    randomization: RandomizationConfig = Field(default_factory=RandomizationConfig)
+    """Domain randomization of this env."""

@@ -6,11 +6,13 @@ colour (hue, saturation, brightness, contrast), horizontal translation, shadow a
 noise. Each is decided independently per frame with its probability from
 :class:`~common.config.AugmentationConfig`.
 
-The pipeline runs once per env step on a 120x160 frame, so every step works on whole arrays with
-OpenCV look-up tables or numpy slicing rather than per-pixel float arithmetic.
+The pipeline runs once per env step on a 120x160 frame, so every step is a few whole-array OpenCV or
+numpy calls on uint8 data, with as few rng calls as possible (each costs microseconds).
 """
 
 from __future__ import annotations
+
+import math
 
 import cv2
 import numpy as np
@@ -152,11 +154,11 @@ def _shadow(gray: np.ndarray, darkness: float, rng: np.random.Generator) -> None
 def _salt_pepper(gray: np.ndarray, amount: float, rng: np.random.Generator) -> None:
     """Set, in place, about ``amount`` of the pixels to 0 or 255 at random.
 
-    Positions are drawn with replacement: far cheaper than a permutation, and the few repeats
-    (about n^2 / 2N of n draws) are negligible at the small fractions used.
+    Positions are drawn with replacement, far cheaper than a permutation. n draws over N pixels hit
+    a fraction 1 - exp(-n / N) of them on average, so n = -N ln(1 - amount) hits ``amount``.
     """
     flat = gray.reshape(-1)
-    count = round(amount * flat.size)
+    count = round(-math.log1p(-amount) * flat.size)
     if count == 0:
         return
     # One draw carries both the position (high bits) and the black/white choice (lowest bit).

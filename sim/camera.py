@@ -183,8 +183,15 @@ def _pixel_maps(spec: CameraSpec, frame: TextureFrame, atlas: _Atlas, levels: in
         return np.ascontiguousarray(a.reshape(shape), dtype=np.float32)
 
     return _PixelMaps(
-        ax=f32(s * pts[:, 0]), ay=f32(s * pts[:, 1]), scale=f32(s), ou=f32(ou), ov=f32(ov),
-        umin=f32(lo_u), umax=f32(hi_u), vmin=f32(lo_v), vmax=f32(hi_v),
+        ax=f32(s * pts[:, 0]),
+        ay=f32(s * pts[:, 1]),
+        scale=f32(s),
+        ou=f32(ou),
+        ov=f32(ov),
+        umin=f32(lo_u),
+        umax=f32(hi_u),
+        vmin=f32(lo_v),
+        vmax=f32(hi_v),
     )
 
 
@@ -193,8 +200,13 @@ class GroundCamera:
 
     LEVELS = 6
 
-    def __init__(self, frame: TextureFrame, texture_rgb: np.ndarray, spec: CameraSpec | None = None,
-                 sky_rgb: tuple[int, int, int] = (150, 170, 200)) -> None:
+    def __init__(
+        self,
+        frame: TextureFrame,
+        texture_rgb: np.ndarray,
+        spec: CameraSpec | None = None,
+        sky_rgb: tuple[int, int, int] = (150, 170, 200),
+    ) -> None:
         self.frame = frame
         self.spec = spec or CameraSpec()
         self.set_surface(texture_rgb, sky_rgb)
@@ -246,8 +258,13 @@ def _quat_from_spec(spec: CameraSpec) -> np.ndarray:
 class MujocoCamera:
     """Reference camera: MuJoCo's own OpenGL render of the scene from the car's camera."""
 
-    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, spec: CameraSpec | None = None,
-                 show_car: bool = False) -> None:
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        data: mujoco.MjData,
+        spec: CameraSpec | None = None,
+        show_car: bool = False,
+    ) -> None:
         ensure_gl_backend()
         self.model, self.data = model, data
         self._cam = model.camera("front").id

@@ -100,7 +100,9 @@ def _validate(raw: np.ndarray, source: str) -> np.ndarray:
     keep[1:] = np.linalg.norm(np.diff(arr[:, :2], axis=0), axis=1) > 1e-9
     arr = arr[keep]
     if len(arr) < MIN_WAYPOINTS:
-        raise TrackError(f"track file {source!r}: {len(arr)} distinct waypoints, need at least {MIN_WAYPOINTS}")
+        raise TrackError(
+            f"track file {source!r}: {len(arr)} distinct waypoints, need at least {MIN_WAYPOINTS}"
+        )
     width = np.linalg.norm(arr[:, 2:4] - arr[:, 4:6], axis=1)
     if np.any(width < 0.05):
         bad = int(np.argmin(width))

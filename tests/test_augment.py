@@ -145,14 +145,13 @@ def test_shadow_is_a_region_spanning_top_to_bottom() -> None:
         assert len(np.unique(out[dark])) == 1
 
 
-@pytest.mark.parametrize("amount", [0.02, 0.1, 0.3])
+@pytest.mark.parametrize("amount", [0.02, 0.1, 0.3, 0.5])
 def test_salt_pepper_fraction(amount: float) -> None:
     cfg = AugmentationConfig(salt_pepper_prob=1, salt_pepper_amount=amount)
     frame = np.full((H, W), 128, np.uint8)
     out = augment_frame(frame, cfg, np.random.default_rng(0))
     noisy = out != 128
-    # Repeated positions (drawn with replacement) lower the count a little below the target.
-    assert noisy.mean() == pytest.approx(amount, rel=0.2)
+    assert noisy.mean() == pytest.approx(amount, rel=0.1)
     assert set(np.unique(out[noisy])) == {0, 255}
     assert 0.35 < (out[noisy] == 255).mean() < 0.65
 

@@ -1,0 +1,224 @@
+"""The gymnasium adapter: ``gymnasium.make("sim:Racer-v0", track="reinvent_base", ...)``.
+
+Thin by design: the car (``physics``), the world and camera (``world``, ``camera``, ``texture``),
+the task (``task``) and the user's reward function (``reward``) do the work; this module wires
+them together, applies the per-episode domain randomization and keeps ``terminated`` (off track,
+lap complete, immobilized, reversed) apart from ``truncated`` (time limit).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import cv2
+import gymnasium as gym
+import numpy as np
+
+from common.action_space import (
+    MAX_STEERING_DEG,
+    ActionSpace,
+    clip_command,
+    default_action_space,
+    load_action_space,
+)
+from common.config import EnvConfig
+from sim.augment import augment_frame, needs_color
+from sim.camera import CameraSpec, GroundCamera, MujocoCamera
+from sim.physics import CarPhysics
+from sim.reward import RewardFunction, check_reward_function, example_path, load_reward_function
+from sim.task import RacingTask, Status, StepResult
+from sim.texture import (
+    DEEPRACER_PALETTE,
+    Palette,
+    TextureFrame,
+    add_noise_texture,
+    colorize,
+    draw_layers,
+    random_palette,
+)
+from sim.track import Track, load_track
+from sim.world import CONTROL_HZ, build_model
+
+OBS_SHAPE = (120, 160, 1)
+
+
+class RacerEnv(gym.Env):
+    """A DeepRacer car on a DeepRacer track, seen through its 160×120 grayscale camera at 15 Hz.
+
+    Keyword arguments are the fields of :class:`common.config.EnvConfig` (or pass ``config=``).
+    ``reset(options=...)`` accepts ``start_index`` (waypoint) and ``reverse`` (bool) to pin the start.
+    ``info`` carries ``params`` (DeepRacer's reward-function input), ``reward_terms``,
+    ``episode_status``, ``progress`` and ``command`` (the steering/speed actually applied).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_HZ}
+
+    def __init__(
+        self, config: EnvConfig | None = None, render_mode: str | None = None, **kwargs: Any
+    ) -> None:
+        self.config = config or EnvConfig(**kwargs)
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode {render_mode!r} is not supported; use 'rgb_array'")
+        self.render_mode = render_mode
+        cfg = self.config
+        self.track: Track = load_track(cfg.track)
+        self.actions: ActionSpace = (
+            load_action_space(cfg.action_space) if cfg.action_space else default_action_space()
+        )
+        self.reward_fn: RewardFunction = load_reward_function(
+            cfg.reward_fn or example_path("default"), time_limit_s=cfg.reward_time_limit_s
+        )
+        check_reward_function(self.reward_fn)
+        self.task = RacingTask(self.track)
+        self._build_world()
+        self.observation_space = gym.spaces.Box(0, 255, OBS_SHAPE, np.uint8)
+        self.action_space = self._gym_action_space()
+        self._episodes = 0
+        self._gain: np.ndarray | None = None
+        self._last: StepResult | None = None
+
+    # --- construction -------------------------------------------------------------------------
+    def _build_world(self) -> None:
+        cfg = self.config
+        self.frame = TextureFrame.for_track(self.track, cfg.texture_ppm)
+        self._layers = draw_layers(self.track, self.frame)
+        self.palette: Palette = DEEPRACER_PALETTE
+        self.texture = colorize(self._layers, self.palette)
+        mujoco_cam = cfg.camera == "mujoco"
+        self.model = build_model(self.frame, self.texture if mujoco_cam else None, self.palette.sky)
+        self.physics = CarPhysics(self.model)
+        self.camera_spec = CameraSpec()
+        if mujoco_cam:
+            self.camera: GroundCamera | MujocoCamera = MujocoCamera(
+                self.model, self.physics.data, self.camera_spec
+            )
+        else:
+            self.camera = GroundCamera(self.frame, self.texture, self.camera_spec, self.palette.sky)
+
+    def _gym_action_space(self) -> gym.spaces.Space:
+        if self.actions.discrete:
+            return gym.spaces.Discrete(self.actions.n)
+        rng = self.actions.action_space
+        low = np.array([rng.steering_angle.low, rng.speed.low], np.float32)
+        high = np.array([rng.steering_angle.high, rng.speed.high], np.float32)
+        return gym.spaces.Box(low, high, dtype=np.float32)
+
+    # --- gymnasium API ------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        """Start an episode: randomize as configured, place the car at rest at a start waypoint."""
+        super().reset(seed=seed)
+        options = options or {}
+        dr, rng = self.config.randomization, self.np_random
+        reverse = bool(options.get("reverse", rng.random() < dr.reverse_prob))
+        index = self._start_index(reverse, options.get("start_index"))
+        self._randomize(rng)
+        pose = self.task.start_pose(index, reverse)
+        self.physics.reset(pose)
+        self.task.begin(index, reverse)
+        self._command = (0.0, 0.0)
+        self._last = self.task.observe(pose, self.physics.wheel_positions(), True, 0.0, self._command, False)
+        self._episodes += 1
+        return self._observe(), self._info(self._last, 0.0)
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        """Apply one action for 1/15 s and return (obs, reward, terminated, truncated, info)."""
+        if self._last is None:
+            raise RuntimeError("call reset() before step()")
+        command = self.actions.command(action)
+        self._command = command
+        self.physics.command(*self._noisy(command))
+        self.physics.step()
+        ph = self.physics
+        result = self.task.observe(ph.pose, ph.wheel_positions(), ph.upright, ph.time, command)
+        reward = self.reward_fn(result.params, step=result.params["steps"])
+        truncated = not result.terminated and result.params["steps"] >= self.config.max_episode_steps
+        status = Status.TIME_UP if truncated else result.status
+        self._last = result
+        info = self._info(result, reward, status)
+        return self._observe(), reward, result.terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        """Top-down RGB view of the track with the car (``render_mode="rgb_array"``)."""
+        if self.render_mode != "rgb_array":
+            return None
+        from sim.views import top_down
+
+        return top_down(self.track, self.texture, self.frame, [self.physics.pose])
+
+    def close(self) -> None:
+        """Release the renderer, if any."""
+        if isinstance(self.camera, MujocoCamera):
+            self.camera.close()
+
+    # --- helpers ------------------------------------------------------------------------------
+    def _start_index(self, reverse: bool, pinned: int | None) -> int:
+        count = self.task.start_indices(reverse)
+        if pinned is not None:
+            return int(pinned) % count
+        dr = self.config.randomization
+        if dr.random_start:
+            return int(self.np_random.integers(count))
+        stride = max(1, count // dr.round_robin_divisions)
+        return (self._episodes * stride) % count
+
+    def _noisy(self, command: tuple[float, float]) -> tuple[float, float]:
+        """Uniform action noise: steering ± noise × 30°, speed × (1 ± noise)."""
+        noise = self.config.randomization.action_noise
+        if noise <= 0:
+            return command
+        d_steer, d_speed = self.np_random.uniform(-noise, noise, 2)
+        return clip_command(command[0] + d_steer * MAX_STEERING_DEG, command[1] * (1 + d_speed))
+
+    def _randomize(self, rng: np.random.Generator) -> None:
+        dr = self.config.randomization
+        if dr.friction or dr.mass:
+            self.physics.set_dynamics(
+                1 + rng.uniform(-dr.friction, dr.friction) if dr.friction else 1.0,
+                1 + rng.uniform(-dr.mass, dr.mass) if dr.mass else 1.0,
+            )
+        if dr.camera_jitter_m or dr.camera_jitter_deg:
+            self.camera.set_spec(self.camera_spec.jittered(rng, dr.camera_jitter_m, dr.camera_jitter_deg))
+        if dr.track_color or dr.texture:
+            self.palette = random_palette(rng, dr.track_color) if dr.track_color else DEEPRACER_PALETTE
+            texture = colorize(self._layers, self.palette)
+            if dr.texture:
+                texture = add_noise_texture(texture, dr.texture, rng)
+            self.texture = texture
+            self.camera.set_surface(texture, self.palette.sky)
+        self._gain = _lighting_gain(rng, dr.lighting) if dr.lighting else None
+
+    def _observe(self) -> np.ndarray:
+        aug = self.config.randomization.augment
+        color = needs_color(aug)
+        frame = self.camera.render(self.physics.pose, color=color)
+        if self._gain is not None:
+            gain = self._gain[..., None] if frame.ndim == 3 else self._gain
+            frame = cv2.convertScaleAbs(frame.astype(np.float32) * gain)
+        frame = augment_frame(frame, aug, self.np_random)
+        return frame[..., None]
+
+    def _info(self, result: StepResult, reward: float, status: str | None = None) -> dict:
+        return {
+            "params": result.params,
+            "reward_terms": {"reward_function": reward},
+            "episode_status": status or result.status,
+            "progress": result.params["progress"],
+            "command": self._command,
+            "pose": self.physics.pose,
+        }
+
+
+def _lighting_gain(rng: np.random.Generator, strength: float) -> np.ndarray:
+    """Per-episode light: overall brightness × (1 ± strength) and a linear gradient in a random direction."""
+    h, w = OBS_SHAPE[:2]
+    angle = rng.uniform(0, 2 * np.pi)
+    yy, xx = np.mgrid[-1 : 1 : h * 1j, -1 : 1 : w * 1j]
+    ramp = (np.cos(angle) * xx + np.sin(angle) * yy) / np.sqrt(2)
+    gain = (1 + rng.uniform(-strength, strength)) * (1 + 0.5 * strength * ramp)
+    return gain.astype(np.float32)
+
+
+def make_env(track: str | Path = "reinvent_base", **kwargs: Any) -> RacerEnv:
+    """Build an env directly (same as ``gymnasium.make("sim:Racer-v0", ...)`` without wrappers)."""
+    return RacerEnv(track=str(track), **kwargs)
