@@ -72,9 +72,7 @@ class ActionSpace(BaseModel):
     def _consistent(self) -> ActionSpace:
         discrete = isinstance(self.action_space, list)
         if discrete != (self.action_space_type == "discrete"):
-            raise ValueError(
-                f"action_space_type {self.action_space_type!r} does not match the action_space given"
-            )
+            raise ValueError(f"action_space_type {self.action_space_type!r} does not match the action_space given")
         if discrete and not self.action_space:
             raise ValueError("the discrete action_space is empty")
         values = (

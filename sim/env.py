@@ -54,18 +54,14 @@ class RacerEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_HZ}
 
-    def __init__(
-        self, config: EnvConfig | None = None, render_mode: str | None = None, **kwargs: Any
-    ) -> None:
+    def __init__(self, config: EnvConfig | None = None, render_mode: str | None = None, **kwargs: Any) -> None:
         self.config = config or EnvConfig(**kwargs)
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode {render_mode!r} is not supported; use 'rgb_array'")
         self.render_mode = render_mode
         cfg = self.config
         self.track: Track = load_track(cfg.track)
-        self.actions: ActionSpace = (
-            load_action_space(cfg.action_space) if cfg.action_space else default_action_space()
-        )
+        self.actions: ActionSpace = load_action_space(cfg.action_space) if cfg.action_space else default_action_space()
         self.reward_fn: RewardFunction = load_reward_function(
             cfg.reward_fn or example_path("default"), time_limit_s=cfg.reward_time_limit_s
         )
@@ -90,9 +86,7 @@ class RacerEnv(gym.Env):
         self.physics = CarPhysics(self.model)
         self.camera_spec = CameraSpec()
         if mujoco_cam:
-            self.camera: GroundCamera | MujocoCamera = MujocoCamera(
-                self.model, self.physics.data, self.camera_spec
-            )
+            self.camera: GroundCamera | MujocoCamera = MujocoCamera(self.model, self.physics.data, self.camera_spec)
         else:
             self.camera = GroundCamera(self.frame, self.texture, self.camera_spec, self.palette.sky)
 

@@ -115,9 +115,7 @@ class RewardFunction:
 
     def __init__(self, path: str | Path, fn: Callable[[dict], Any], time_limit_s: float | None = 1.0) -> None:
         if time_limit_s is not None and not (math.isfinite(time_limit_s) and time_limit_s > 0):
-            raise ValueError(
-                f"time_limit_s must be a positive number of seconds or None, got {time_limit_s!r}"
-            )
+            raise ValueError(f"time_limit_s must be a positive number of seconds or None, got {time_limit_s!r}")
         self.path = Path(path)
         self.fn = fn
         self.time_limit_s = time_limit_s
@@ -233,9 +231,7 @@ def load_reward_function(path: str | Path, time_limit_s: float | None = 1.0) -> 
         # errors from ones raised while running it, and writes no __pycache__ into their folder.
         code = compile(source, str(path), "exec", dont_inherit=True)
     except SyntaxError as exc:
-        raise RewardFunctionError(
-            f"{name} has a syntax error at line {exc.lineno}: {_one_line(exc.msg)}"
-        ) from exc
+        raise RewardFunctionError(f"{name} has a syntax error at line {exc.lineno}: {_one_line(exc.msg)}") from exc
     except ValueError as exc:  # undecodable bytes or NUL bytes, depending on the Python version
         raise RewardFunctionError(f"{name} is not valid Python source: {_describe(exc)}") from exc
 

@@ -77,9 +77,7 @@ class TextureFrame:
         lo, hi = track.bounds
         lo, hi = lo - MARGIN_M, hi + MARGIN_M
         span = hi - lo
-        ppm = min(
-            ppm, MAX_TEXTURE_PX / float(np.max(span)), float(np.sqrt(MAX_TEXTURE_AREA_PX / np.prod(span)))
-        )
+        ppm = min(ppm, MAX_TEXTURE_PX / float(np.max(span)), float(np.sqrt(MAX_TEXTURE_AREA_PX / np.prod(span))))
         w, h = (int(np.ceil(v)) for v in (hi - lo) * ppm)
         return cls(x0=float(lo[0]), y1=float(hi[1]), ppm=ppm, width=w, height=h)
 
@@ -149,9 +147,7 @@ def draw_surface(track: Track, frame: TextureFrame, palette: Palette = DEEPRACER
 def add_noise_texture(img: np.ndarray, strength: float, rng: np.random.Generator) -> np.ndarray:
     """Multiply the image by smooth random blotches (grain of ~10 cm) of relative amplitude ``strength``."""
     h, w = img.shape[:2]
-    coarse = rng.uniform(1 - strength, 1 + strength, size=(max(2, h // 20), max(2, w // 20))).astype(
-        np.float32
-    )
+    coarse = rng.uniform(1 - strength, 1 + strength, size=(max(2, h // 20), max(2, w // 20))).astype(np.float32)
     gain = cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC)
     out = img.astype(np.float32) * (gain[..., None] if img.ndim == 3 else gain)
     return np.clip(out, 0, 255).astype(np.uint8)

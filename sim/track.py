@@ -58,9 +58,7 @@ def _segments_cross(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarr
     """Pairwise proper-crossing test between segments a (M,2) and b (K,2); returns (M, K) bool."""
 
     def orient(p, q, r):
-        return (q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1]) - (q[..., 1] - p[..., 1]) * (
-            r[..., 0] - p[..., 0]
-        )
+        return (q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1]) - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0])
 
     A0, A1 = a0[:, None, :], a1[:, None, :]
     B0, B1 = b0[None, :, :], b1[None, :, :]
@@ -100,9 +98,7 @@ def _validate(raw: np.ndarray, source: str) -> np.ndarray:
     keep[1:] = np.linalg.norm(np.diff(arr[:, :2], axis=0), axis=1) > 1e-9
     arr = arr[keep]
     if len(arr) < MIN_WAYPOINTS:
-        raise TrackError(
-            f"track file {source!r}: {len(arr)} distinct waypoints, need at least {MIN_WAYPOINTS}"
-        )
+        raise TrackError(f"track file {source!r}: {len(arr)} distinct waypoints, need at least {MIN_WAYPOINTS}")
     width = np.linalg.norm(arr[:, 2:4] - arr[:, 4:6], axis=1)
     if np.any(width < 0.05):
         bad = int(np.argmin(width))

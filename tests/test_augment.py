@@ -15,9 +15,7 @@ ALL_ON = AugmentationConfig(color_prob=1, translate_prob=1, shadow_prob=1, salt_
 
 def colorful_rgb(seed: int = 0) -> np.ndarray:
     """A saturated frame: vertical bands of red, green, blue, yellow, cyan and magenta plus noise."""
-    palette = np.array(
-        [[255, 0, 0], [0, 255, 0], [0, 0, 255], [255, 255, 0], [0, 255, 255], [255, 0, 255]], np.uint8
-    )
+    palette = np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255], [255, 255, 0], [0, 255, 255], [255, 0, 255]], np.uint8)
     bands = palette[(np.arange(W) * len(palette)) // W]
     frame = np.broadcast_to(bands, (H, W, 3)).astype(np.int16)
     frame += np.random.default_rng(seed).integers(-20, 21, size=frame.shape, dtype=np.int16)
@@ -111,8 +109,7 @@ def test_translation_replicates_border_column() -> None:
         matches = [
             dx
             for dx in range(-10, 11)
-            if dx
-            and np.array_equal(out[:, max(dx, 0) : W + min(dx, 0)], frame[:, max(-dx, 0) : W - max(dx, 0)])
+            if dx and np.array_equal(out[:, max(dx, 0) : W + min(dx, 0)], frame[:, max(-dx, 0) : W - max(dx, 0)])
         ]
         assert len(matches) == 1
         dx = matches[0]
@@ -160,9 +157,7 @@ def test_color_jitter_changes_rgb_output() -> None:
     cfg = AugmentationConfig(color_prob=1)
     frame = colorful_rgb()
     base = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
-    changed = [
-        not np.array_equal(augment_frame(frame, cfg, np.random.default_rng(s)), base) for s in range(10)
-    ]
+    changed = [not np.array_equal(augment_frame(frame, cfg, np.random.default_rng(s)), base) for s in range(10)]
     assert all(changed)
 
 
@@ -170,10 +165,7 @@ def test_hue_shift_alone_changes_colorful_frame() -> None:
     cfg = AugmentationConfig(color_prob=1, hue_max_deg=90, saturation_max=0, brightness_max=0, contrast_max=0)
     frame = colorful_rgb()
     base = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
-    diffs = [
-        np.abs(augment_frame(frame, cfg, np.random.default_rng(s)).astype(int) - base).mean()
-        for s in range(10)
-    ]
+    diffs = [np.abs(augment_frame(frame, cfg, np.random.default_rng(s)).astype(int) - base).mean() for s in range(10)]
     assert sum(d > 5 for d in diffs) >= 8
 
 
@@ -187,9 +179,7 @@ def test_zero_strength_color_jitter_is_exact_gray() -> None:
 
 def test_color_jitter_on_gray_is_brightness_contrast_only() -> None:
     frame = gradient_gray()
-    only_hue = AugmentationConfig(
-        color_prob=1, hue_max_deg=90, saturation_max=1, brightness_max=0, contrast_max=0
-    )
+    only_hue = AugmentationConfig(color_prob=1, hue_max_deg=90, saturation_max=1, brightness_max=0, contrast_max=0)
     np.testing.assert_array_equal(augment_frame(frame, only_hue, np.random.default_rng(0)), frame)
     bright = AugmentationConfig(color_prob=1, brightness_max=0.5, contrast_max=0.5)
     diffs = [augment_frame(frame, bright, np.random.default_rng(s)) for s in range(5)]
