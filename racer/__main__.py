@@ -1,0 +1,3 @@
+from racer.cli import main
+
+main()
