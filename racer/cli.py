@@ -106,7 +106,9 @@ def drive_cmd(
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     reward_fn: Annotated[Path | None, typer.Option("--reward-fn", help="DeepRacer reward function file.")] = None,
     action_space: Annotated[Path | None, typer.Option("--action-space", help="DeepRacer model_metadata.json.")] = None,
-    json_out: Annotated[str | None, typer.Option("--json", help="Write the episodes as JSON to F (- = stdout).")] = None,
+    json_out: Annotated[
+        str | None, typer.Option("--json", help="Write the episodes as JSON to F (- = stdout).")
+    ] = None,
 ) -> None:
     """Drive a random policy for a few episodes and print what happened (a smoke test of the simulator)."""
     from common.config import EnvConfig

@@ -148,6 +148,7 @@ class _PixelMaps:
     umax: np.ndarray
     vmin: np.ndarray
     vmax: np.ndarray
+    first_row: int  # rows above this see only sky; the arrays above cover rows first_row.. only
 
 
 def _pixel_levels(spec: CameraSpec, texel_m: float, levels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -168,7 +169,11 @@ def _pixel_levels(spec: CameraSpec, texel_m: float, levels: int) -> tuple[np.nda
 
 def _pixel_maps(spec: CameraSpec, frame: TextureFrame, atlas: _Atlas, levels: int) -> _PixelMaps:
     pts, ground, level = _pixel_levels(spec, 1.0 / frame.ppm, levels)
-    shape = (spec.height, spec.width)
+    rows = np.flatnonzero(ground.reshape(spec.height, spec.width).any(axis=1))
+    first = int(rows[0]) if len(rows) else spec.height - 1
+    keep = slice(first * spec.width, None)
+    pts, ground, level = pts[keep], ground[keep], level[keep]
+    shape = (spec.height - first, spec.width)
     s = np.where(ground, frame.ppm / (1 << level), 0.0)
     origin = np.array(atlas.origins, np.float64)[level]
     size = np.array(atlas.sizes, np.float64)[level]
@@ -192,6 +197,7 @@ def _pixel_maps(spec: CameraSpec, frame: TextureFrame, atlas: _Atlas, levels: in
         umax=f32(hi_u),
         vmin=f32(lo_v),
         vmax=f32(hi_v),
+        first_row=first,
     )
 
 
@@ -221,8 +227,8 @@ class GroundCamera:
         self._texture_rgb = texture_rgb
         self._sky_rgb = np.array(sky_rgb, np.uint8)
         gray = cv2.cvtColor(texture_rgb, cv2.COLOR_RGB2GRAY)
-        sky_gray = cv2.cvtColor(self._sky_rgb[None, None], cv2.COLOR_RGB2GRAY)[0, 0]
-        self._gray = _build_atlas(gray, sky_gray, self.LEVELS)
+        self._sky_gray = cv2.cvtColor(self._sky_rgb[None, None], cv2.COLOR_RGB2GRAY)[0, 0]
+        self._gray = _build_atlas(gray, self._sky_gray, self.LEVELS)
         self._rgb: _Atlas | None = None  # built on the first colour frame: most runs only need gray
         self.set_spec(self.spec)
 
@@ -238,7 +244,11 @@ class GroundCamera:
         if color and self._rgb is None:
             self._rgb = _build_atlas(self._texture_rgb, self._sky_rgb, self.LEVELS)
         atlas = self._rgb if color else self._gray
-        return cv2.remap(atlas.image, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        sky = self._sky_rgb if color else self._sky_gray
+        out = np.empty((self.spec.height, self.spec.width) + atlas.image.shape[2:], np.uint8)
+        out[: m.first_row] = sky  # only sky above the horizon: skip the lookup there
+        cv2.remap(atlas.image, u, v, cv2.INTER_LINEAR, dst=out[m.first_row :], borderMode=cv2.BORDER_REPLICATE)
+        return out
 
 
 class RenderError(RuntimeError):

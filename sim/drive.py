@@ -20,8 +20,13 @@ def drive_random(config: EnvConfig, episodes: int, seed: int = 0) -> list[dict]:
             done = term or trunc
         p = info["params"]
         rows.append(
-            {"episode": ep, "steps": p["steps"], "status": info["episode_status"], "progress": p["progress"],
-             "return": total}
+            {
+                "episode": ep,
+                "steps": p["steps"],
+                "status": info["episode_status"],
+                "progress": p["progress"],
+                "return": total,
+            }
         )
     env.close()
     return rows

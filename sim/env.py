@@ -31,6 +31,7 @@ from sim.task import RacingTask, Status, StepResult
 from sim.texture import (
     DEEPRACER_PALETTE,
     Palette,
+    RoadMask,
     TextureFrame,
     add_noise_texture,
     colorize,
@@ -66,8 +67,8 @@ class RacerEnv(gym.Env):
             cfg.reward_fn or example_path("default"), time_limit_s=cfg.reward_time_limit_s
         )
         check_reward_function(self.reward_fn)
-        self.task = RacingTask(self.track)
         self._build_world()
+        self.task = RacingTask(self.track, road=RoadMask(self.track, self.frame))
         self.observation_space = gym.spaces.Box(0, 255, OBS_SHAPE, np.uint8)
         self.action_space = self._gym_action_space()
         self._episodes = 0

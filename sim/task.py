@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -55,6 +56,8 @@ class EpisodeState:
     last_s: float
     travelled: float
     """Distance of the front point along the centre line from the start position, metres."""
+    segment: int = 0
+    """Centre-line segment closest to the front point at the last step (search hint)."""
     steps: int = 0
     history: deque = field(default_factory=lambda: deque(maxlen=REVERSED_WINDOW_STEPS + 1))
 
@@ -71,8 +74,10 @@ class StepResult:
 class RacingTask:
     """DeepRacer's racing task on one track."""
 
-    def __init__(self, track: Track) -> None:
+    def __init__(self, track: Track, road: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+        """``road`` tells which points are on the road (default: the exact polygon test of the track)."""
         self.track = track
+        self._road = road or track.on_track
         self._reversed_track = track.reversed()
         self._waypoints = {False: _waypoint_list(track), True: _waypoint_list(self._reversed_track)}
         self.state: EpisodeState | None = None
@@ -98,8 +103,9 @@ class RacingTask:
         i = index % (len(track.center) - 1)
         start_s = float(track.cumulative[i])
         front = self.start_pose(index, reverse).ahead(FRONT_POINT_M)
-        s = float(track.project(front[None]).s[0])
-        self.state = EpisodeState(track, reverse, start_s, s, _wrap(s - start_s, track))
+        proj = track.project(front[None])
+        s = float(proj.s[0])
+        self.state = EpisodeState(track, reverse, start_s, s, _wrap(s - start_s, track), int(proj.segment[0]))
 
     def observe(
         self,
@@ -115,14 +121,15 @@ class RacingTask:
         assert st is not None, "begin() an episode first"
         track = st.track
         front = pose.ahead(FRONT_POINT_M)
-        proj = track.project(front[None])
+        proj = track.project_point(float(front[0]), float(front[1]), hint=st.segment)
         s = float(proj.s[0])
+        st.segment = int(proj.segment[0])
         st.travelled += _wrap(s - st.last_s, track)
         st.last_s = s
         if count_step:
             st.steps += 1
         st.history.append((st.travelled, pose.x, pose.y))
-        on = track.on_track(wheels)
+        on = self._road(wheels)
         progress = self._progress(st, s)
         params = self._params(st, pose, front, proj, on, progress, sim_time, command)
         status = self._status(st, on, upright, progress) if count_step else Status.PREPARE

@@ -197,20 +197,63 @@ class Track:
         """True if a closed track runs clockwise in the file's order."""
         return self.closed and _signed_area(self.center) < 0
 
-    def project(self, points: np.ndarray) -> Projection:
-        """Project (K, 2) points onto the centre line."""
+    def project(self, points: np.ndarray, hint: int | None = None, window: int = 8) -> Projection:
+        """Project (K, 2) points onto the centre line.
+
+        With ``hint`` (a segment index near the answer, e.g. last step's) only segments within ``window``
+        of it are searched, which is several times faster per step; the full search runs if that finds
+        nothing closer than a track width.
+        """
         pts = np.atleast_2d(np.asarray(points, dtype=np.float64))
+        n_seg = len(self._seg[2])
+        if hint is None or 2 * window + 1 >= n_seg:
+            return self._project(pts, np.arange(n_seg))
+        idx = np.arange(hint - window, hint + window + 1)
+        idx = idx % n_seg if self.closed else idx[(idx >= 0) & (idx < n_seg)]
+        proj = self._project(pts, idx)
+        if np.all(np.abs(proj.lateral) < self.widths.max()):
+            return proj
+        return self._project(pts, np.arange(n_seg))
+
+    @cached_property
+    def _flat(self) -> tuple[np.ndarray, ...]:
         start, vec, length = self._seg
+        return start[:, 0].copy(), start[:, 1].copy(), vec[:, 0].copy(), vec[:, 1].copy(), 1.0 / length**2
+
+    def project_point(self, x: float, y: float, hint: int, window: int = 8) -> Projection:
+        """``project`` for one point near segment ``hint``: the per-step fast path (few small numpy ops)."""
+        sx, sy, vx, vy, inv2 = self._flat
+        n_seg = len(sx)
+        if 2 * window + 1 >= n_seg:
+            return self.project(np.array([[x, y]]))
+        idx = np.arange(hint - window, hint + window + 1)
+        idx = idx % n_seg if self.closed else idx[(idx >= 0) & (idx < n_seg)]
+        rx, ry = x - sx[idx], y - sy[idx]
+        ax, ay = vx[idx], vy[idx]
+        t = np.clip((rx * ax + ry * ay) * inv2[idx], 0.0, 1.0)
+        dx, dy = rx - t * ax, ry - t * ay
+        d2 = dx * dx + dy * dy
+        b = int(np.argmin(d2))
+        lateral = float(np.sqrt(d2[b])) * (1.0 if ax[b] * ry[b] - ay[b] * rx[b] >= 0 else -1.0)
+        if abs(lateral) >= self.widths.max():  # lost (e.g. a jump): search everything
+            return self.project(np.array([[x, y]]))
+        seg = int(idx[b])
+        s = self.cumulative[seg] + t[b] * self._seg[2][seg]
+        return Projection(s=np.array([s]), lateral=np.array([lateral]), segment=np.array([seg]), t=np.array([t[b]]))
+
+    def _project(self, pts: np.ndarray, segments: np.ndarray) -> Projection:
+        start, vec, length = (a[segments] for a in self._seg)
         rel = pts[:, None, :] - start[None, :, :]
         t = np.clip(np.einsum("kmi,mi->km", rel, vec) / (length**2), 0.0, 1.0)
         foot = start[None] + t[..., None] * vec[None]
         dist2 = np.sum((pts[:, None, :] - foot) ** 2, axis=2)
-        seg = np.argmin(dist2, axis=1)
+        best = np.argmin(dist2, axis=1)
         k = np.arange(len(pts))
-        tk = t[k, seg]
-        cross = vec[seg, 0] * rel[k, seg, 1] - vec[seg, 1] * rel[k, seg, 0]
-        lateral = np.sign(cross) * np.sqrt(dist2[k, seg])
-        s = self.cumulative[seg] + tk * length[seg]
+        tk = t[k, best]
+        seg = segments[best]
+        cross = vec[best, 0] * rel[k, best, 1] - vec[best, 1] * rel[k, best, 0]
+        lateral = np.sign(cross) * np.sqrt(dist2[k, best])
+        s = self.cumulative[seg] + tk * self._seg[2][seg]
         return Projection(s=s, lateral=lateral, segment=seg, t=tk)
 
     def width_at(self, proj: Projection) -> np.ndarray:

@@ -10,15 +10,15 @@ import numpy as np
 
 from sim.texture import TextureFrame
 
-PHYSICS_SUBSTEPS = 10
-"""Physics steps per 15 Hz control step (timestep 1/150 s: stable for the stiff wheel servos)."""
+PHYSICS_SUBSTEPS = 8
+"""Physics steps per 15 Hz control step (timestep 1/120 s: stable for the wheel servos and contacts)."""
 CONTROL_HZ = 15.0
 """Camera and action rate, Hz, as on DeepRacer."""
 
 _SCENE = """
 <mujoco model="racer_world">
   <compiler angle="degree"/>
-  <option timestep="{timestep}" integrator="implicitfast" cone="elliptic">
+  <option timestep="{timestep}" integrator="implicitfast">
     <flag energy="disable"/>
   </option>
   <visual>
