@@ -300,6 +300,21 @@ class MujocoCamera:
         self.model.cam_quat[self._cam] = _quat_from_spec(spec)
         self.model.cam_fovy[self._cam] = spec.fovy_deg
 
+    def set_surface(self, texture_rgb: np.ndarray, sky_rgb: tuple[int, int, int]) -> None:
+        """Replace the ground texture (same size) and re-upload it to the GPU (colour randomization)."""
+        tex = self.model.texture("track").id
+        h, w = int(self.model.tex_height[tex]), int(self.model.tex_width[tex])
+        if texture_rgb.shape[:2] != (h, w):
+            raise ValueError(f"texture is {texture_rgb.shape[:2]}, the model's is {(h, w)}")
+        adr = int(self.model.tex_adr[tex])
+        # Rows are stored as in the PNG the model was built from, which was written from this same layout.
+        self.model.tex_data[adr : adr + h * w * 3] = texture_rgb.reshape(-1)
+        sky = self.model.texture("sky").id
+        sky_adr, sky_n = int(self.model.tex_adr[sky]), int(self.model.tex_height[sky] * self.model.tex_width[sky])
+        self.model.tex_data[sky_adr : sky_adr + sky_n * 3] = np.tile(np.asarray(sky_rgb, np.uint8), sky_n)
+        for t in (tex, sky):
+            mujoco.mjr_uploadTexture(self.model, self._renderer._mjr_context, t)
+
     def render(self, pose: Pose | None = None, color: bool = False) -> np.ndarray:
         """The camera image for the current physics state (``pose`` is ignored: the data holds it)."""
         self._renderer.update_scene(self.data, camera=self._cam, scene_option=self._opt)

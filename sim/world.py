@@ -18,7 +18,9 @@ CONTROL_HZ = 15.0
 _SCENE = """
 <mujoco model="racer_world">
   <compiler angle="degree"/>
-  <option timestep="{timestep}" integrator="implicitfast">
+  <!-- Elliptic friction cones: pyramidal ones are anisotropic and make a car driving straight veer
+       depending on its heading. -->
+  <option timestep="{timestep}" integrator="implicitfast" cone="elliptic">
     <flag energy="disable"/>
   </option>
   <visual>

@@ -1,0 +1,106 @@
+"""The car model: DeepRacer's dimensions, its servos, and that it drives like a car."""
+
+import math
+
+import numpy as np
+import pytest
+
+from sim.env import RacerEnv
+from sim.physics import WHEEL_RADIUS_M, CarPhysics, Pose
+from sim.texture import TextureFrame
+from sim.track import load_track
+from sim.world import CONTROL_HZ, PHYSICS_SUBSTEPS, build_model
+
+
+@pytest.fixture(scope="module")
+def physics() -> CarPhysics:
+    track = load_track("reinvent_base")
+    return CarPhysics(build_model(TextureFrame.for_track(track)))
+
+
+def drive(ph: CarPhysics, pose: Pose, steer: float, speed: float, steps: int) -> None:
+    ph.reset(pose)
+    ph.command(steer, speed)
+    for _ in range(steps):
+        ph.step()
+
+
+def test_dimensions_match_deepracer(physics):
+    m = physics.model
+    pos = {n: m.body(n).pos for n in ("fl_steer", "fr_steer", "rl_wheel", "rr_wheel")}
+    assert pos["fl_steer"][0] - pos["rl_wheel"][0] == pytest.approx(0.164)  # wheelbase
+    assert pos["fl_steer"][1] - pos["fr_steer"][1] == pytest.approx(0.16)  # track width
+    assert m.geom("fl_tyre").size[0] == pytest.approx(0.035)
+    assert 1.5 <= m.body_subtreemass[m.body("car").id] <= 5.0
+    assert m.opt.timestep * PHYSICS_SUBSTEPS == pytest.approx(1 / CONTROL_HZ)
+
+
+def test_actuators_velocity_per_wheel_position_per_hinge(physics):
+    m = physics.model
+    names = {m.actuator(i).name for i in range(m.nu)}
+    assert names == {"fl_drive", "fr_drive", "rl_drive", "rr_drive", "fl_steer", "fr_steer"}
+    assert m.actuator("fl_drive").trntype == 0 and m.actuator("fl_steer").trntype == 0
+    assert np.degrees(m.jnt_range[m.joint("fl_steer").id]).tolist() == pytest.approx([-30, 30])
+
+
+def test_reset_puts_car_at_rest_at_pose(physics):
+    physics.reset(Pose(1.0, 2.0, 0.7))
+    p = physics.pose
+    assert (p.x, p.y, p.yaw) == pytest.approx((1.0, 2.0, 0.7))
+    assert physics.speed == 0.0
+    assert physics.upright
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.5, 1.2, -2.5])
+def test_drives_straight_at_commanded_speed_in_any_heading(physics, yaw):
+    drive(physics, Pose(1.0, 2.0, yaw), 0.0, 1.0, 15)  # 1 s
+    p = physics.pose
+    lateral = -(p.x - 1.0) * math.sin(yaw) + (p.y - 2.0) * math.cos(yaw)
+    assert physics.speed == pytest.approx(1.0, rel=0.03)
+    assert abs(lateral) < 0.002 and abs(p.yaw - yaw) < 0.002
+
+
+def test_wheel_speed_command_is_speed_over_radius(physics):
+    physics.reset(Pose(0, 0, 0))
+    physics.command(10.0, 2.0)
+    assert physics.data.ctrl[physics.model.actuator("rl_drive").id] == pytest.approx(2.0 / WHEEL_RADIUS_M)
+    assert physics.data.ctrl[physics.model.actuator("fr_steer").id] == pytest.approx(math.radians(10.0))
+
+
+def test_steering_reaches_command_and_turns_left_for_positive_angle(physics):
+    drive(physics, Pose(0, 0, 0), 15.0, 0.5, 8)
+    assert physics.steering_deg == pytest.approx(15.0, abs=0.5)
+    assert physics.yaw_rate > 0 and physics.pose.yaw > 0
+    drive(physics, Pose(0, 0, 0), -15.0, 0.5, 8)
+    assert physics.yaw_rate < 0
+
+
+def test_turn_rate_close_to_kinematic_at_low_speed(physics):
+    # An ideal car before calibration: at 0.5 m/s and 10° the yaw rate is within 20 % of v/L·tan(δ).
+    drive(physics, Pose(0, 0, 0), 10.0, 0.5, 30)
+    kinematic = physics.speed / 0.164 * math.tan(math.radians(10.0))
+    assert physics.yaw_rate == pytest.approx(kinematic, rel=0.2)
+
+
+def test_dynamics_randomization_scales_and_restores(physics):
+    m = physics.model
+    mass0, fric0 = m.body_mass.copy(), m.geom_friction[m.geom("fl_tyre").id, 0]
+    physics.set_dynamics(friction_scale=0.5, mass_scale=1.5)
+    assert m.geom_friction[m.geom("fl_tyre").id, 0] == pytest.approx(0.5 * fric0)
+    assert m.body_mass == pytest.approx(1.5 * mass0)
+    physics.set_dynamics()
+    assert m.body_mass == pytest.approx(mass0)
+
+
+def test_wheel_positions_are_the_four_corners(physics):
+    physics.reset(Pose(0, 0, 0))
+    w = physics.wheel_positions()
+    assert w == pytest.approx(np.array([[0.082, 0.08], [0.082, -0.08], [-0.082, 0.08], [-0.082, -0.08]]), abs=1e-6)
+
+
+def test_env_render_rgb_array_shows_the_track():
+    env = RacerEnv(track="reinvent_base", render_mode="rgb_array")
+    env.reset(seed=0)
+    img = env.render()
+    assert img.ndim == 3 and img.shape[2] == 3 and img.shape[1] == 800
+    assert (img == (220, 30, 30)).all(axis=2).sum() > 20  # the car is drawn
