@@ -120,6 +120,8 @@ class ActionSpace(BaseModel):
 
 def clip_command(steering_deg: float, speed_mps: float) -> tuple[float, float]:
     """Clip a command to the car's limits, like the DeepRacer simapp."""
+    if not (math.isfinite(steering_deg) and math.isfinite(speed_mps)):
+        raise ValueError(f"command ({steering_deg}, {speed_mps}) is not finite")
     steer = min(max(float(steering_deg), -MAX_STEERING_DEG), MAX_STEERING_DEG)
     speed = min(max(float(speed_mps), MIN_SPEED_MPS), MAX_SPEED_MPS)
     return steer, speed
@@ -151,6 +153,9 @@ def load_action_space(path: str | Path) -> ActionSpace:
     try:
         return ActionSpace.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
+        # The action_space field is a union: report the error of the member the file's type asks for.
+        member = "ContinuousSpace" if data.get("action_space_type") == "continuous" else "list[DiscreteAction]"
+        errors = exc.errors()
+        err = next((e for e in errors if member in [str(v) for v in e["loc"]]), errors[0])
         where = ".".join(str(v) for v in err["loc"]) or "file"
         raise ActionSpaceError(f"action space file {str(p)!r}: {where}: {err['msg']}") from None

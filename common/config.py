@@ -82,8 +82,9 @@ class EnvConfig(_Strict):
     """Path to a DeepRacer model_metadata.json; None = DeepRacer's default 10 discrete actions."""
     camera: Literal["ground", "mujoco"] = "ground"
     """Camera path: "ground" = fast ground projection of the track texture; "mujoco" = MuJoCo's OpenGL render."""
-    max_episode_steps: int = Field(3000, ge=1)
-    """Time limit, steps at 15 Hz (3000 = 200 s); reaching it truncates the episode."""
+    time_limit_steps: int = Field(3000, ge=1)
+    """Time limit, steps at 15 Hz (3000 = 200 s); reaching it truncates the episode with status "time_up".
+    (Not named ``max_episode_steps``: ``gymnasium.make`` takes that name for its own TimeLimit wrapper.)"""
     texture_ppm: float = Field(200.0, gt=10, le=1000)
     """Resolution of the track texture, pixels per metre (capped on large tracks)."""
     reward_time_limit_s: float | None = Field(1.0, gt=0)

@@ -317,6 +317,7 @@ class MujocoCamera:
 
     def render(self, pose: Pose | None = None, color: bool = False) -> np.ndarray:
         """The camera image for the current physics state (``pose`` is ignored: the data holds it)."""
+        mujoco.mj_camlight(self.model, self.data)  # camera pose from the current kinematics
         self._renderer.update_scene(self.data, camera=self._cam, scene_option=self._opt)
         rgb = self._renderer.render()
         return rgb if color else cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)

@@ -127,7 +127,7 @@ class RacerEnv(gym.Env):
         ph = self.physics
         result = self.task.observe(ph.pose, ph.wheel_positions(), ph.upright, ph.time, command)
         reward = self.reward_fn(result.params, step=result.params["steps"])
-        truncated = not result.terminated and result.params["steps"] >= self.config.max_episode_steps
+        truncated = not result.terminated and result.params["steps"] >= self.config.time_limit_steps
         status = Status.TIME_UP if truncated else result.status
         self._last = result
         info = self._info(result, reward, status)

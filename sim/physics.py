@@ -73,6 +73,8 @@ class CarPhysics:
     def step(self, substeps: int = PHYSICS_SUBSTEPS) -> None:
         """Advance the physics by one control period."""
         mujoco.mj_step(self.model, self.data, nstep=substeps)
+        # mj_step leaves positions derived from qpos (wheels, camera) one substep stale: refresh them.
+        mujoco.mj_kinematics(self.model, self.data)
 
     @property
     def time(self) -> float:

@@ -176,6 +176,8 @@ class RacingTask:
         nxt = seg + 1 if not (track.closed and seg + 1 == n - 1) else 0
         lateral = float(proj.lateral[0])
         heading = math.degrees(math.atan2(math.sin(pose.yaw), math.cos(pose.yaw)))
+        if heading <= -180.0:  # DeepRacer's range is (-180, 180]
+            heading += 360.0
         return {
             "all_wheels_on_track": bool(on.all()),
             "x": float(front[0]),

@@ -283,15 +283,29 @@ class Track:
         outline, hole = self.road_polygons
         pts = np.atleast_2d(np.asarray(points, dtype=np.float64))
         inside = _points_in_polygon(pts, outline)
+        on_line = _near_polyline(pts, outline, closed=True)
         if hole is not None:
             inside &= ~_points_in_polygon(pts, hole)
-        return inside
+            on_line |= _near_polyline(pts, hole, closed=True)
+        return inside | on_line
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(min_xy, max_xy) of everything drawn for the track, metres."""
         xy = self.waypoints.reshape(-1, 2)
         return xy.min(axis=0), xy.max(axis=0)
+
+
+def _near_polyline(pts: np.ndarray, poly: np.ndarray, closed: bool, tol: float = 1e-9) -> np.ndarray:
+    """(K,) bool: points within ``tol`` metres of the polyline (the even-odd test is ambiguous there)."""
+    a = poly
+    b = np.roll(poly, -1, axis=0) if closed else poly[1:]
+    a = a if closed else poly[:-1]
+    ab = b - a
+    rel = pts[:, None, :] - a[None]
+    t = np.clip(np.einsum("kmi,mi->km", rel, ab) / np.maximum(np.sum(ab**2, axis=1), 1e-18), 0.0, 1.0)
+    d2 = np.sum((rel - t[..., None] * ab[None]) ** 2, axis=2)
+    return d2.min(axis=1) <= tol * tol
 
 
 def _points_in_polygon(pts: np.ndarray, poly: np.ndarray) -> np.ndarray:
