@@ -22,6 +22,8 @@ from sim._gl import ensure_gl_backend
 from sim.physics import Pose
 from sim.texture import TextureFrame
 
+CLAMP_FREE_M = 1.0
+"""Ground this close to the car needs no clamping to the texture: the texture reaches 1.5 m beyond the track."""
 MAX_RANGE_M = 40.0
 """Ground farther than this along a ray is drawn as sky (MuJoCo's far plane is at 60 m)."""
 
@@ -149,6 +151,7 @@ class _PixelMaps:
     vmin: np.ndarray
     vmax: np.ndarray
     first_row: int  # rows above this see only sky; the arrays above cover rows first_row.. only
+    clip_rows: int  # only these first rows of the arrays can look beyond the texture and need clamping
 
 
 def _pixel_levels(spec: CameraSpec, texel_m: float, levels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -174,6 +177,9 @@ def _pixel_maps(spec: CameraSpec, frame: TextureFrame, atlas: _Atlas, levels: in
     keep = slice(first * spec.width, None)
     pts, ground, level = pts[keep], ground[keep], level[keep]
     shape = (spec.height - first, spec.width)
+    # While the car is on the track, ground closer than the texture margin is inside the texture.
+    far = (~ground | (np.hypot(pts[:, 0], pts[:, 1]) > CLAMP_FREE_M)).reshape(shape).any(axis=1)
+    clip_rows = int(np.flatnonzero(far)[-1]) + 1 if far.any() else 0
     s = np.where(ground, frame.ppm / (1 << level), 0.0)
     origin = np.array(atlas.origins, np.float64)[level]
     size = np.array(atlas.sizes, np.float64)[level]
@@ -198,6 +204,7 @@ def _pixel_maps(spec: CameraSpec, frame: TextureFrame, atlas: _Atlas, levels: in
         vmin=f32(lo_v),
         vmax=f32(hi_v),
         first_row=first,
+        clip_rows=clip_rows,
     )
 
 
@@ -239,8 +246,9 @@ class GroundCamera:
         tx, ty = np.float32(pose.x - f.x0), np.float32(f.y1 - pose.y)
         u = c * m.ax - s * m.ay + (m.scale * tx + m.ou)
         v = (m.scale * ty + m.ov) - (s * m.ax + c * m.ay)
-        np.clip(u, m.umin, m.umax, out=u)
-        np.clip(v, m.vmin, m.vmax, out=v)
+        k = m.clip_rows
+        np.clip(u[:k], m.umin[:k], m.umax[:k], out=u[:k])
+        np.clip(v[:k], m.vmin[:k], m.vmax[:k], out=v[:k])
         if color and self._rgb is None:
             self._rgb = _build_atlas(self._texture_rgb, self._sky_rgb, self.LEVELS)
         atlas = self._rgb if color else self._gray

@@ -50,6 +50,7 @@ class CarPhysics:
         self._mass = model.body_mass.copy()
         self._inertia = model.body_inertia.copy()
         self._height = float(model.body_pos[self._car_body, 2])
+        self._pose: Pose | None = None  # cached until the state changes
 
     def reset(self, pose: Pose) -> None:
         """Place the car at rest at ``pose`` with wheels straight."""
@@ -58,6 +59,7 @@ class CarPhysics:
         q[self._root_q : self._root_q + 3] = (pose.x, pose.y, self._height)
         q[self._root_q + 3 : self._root_q + 7] = (math.cos(pose.yaw / 2), 0.0, 0.0, math.sin(pose.yaw / 2))
         mujoco.mj_forward(self.model, self.data)
+        self._pose = None
 
     def set_dynamics(self, friction_scale: float = 1.0, mass_scale: float = 1.0) -> None:
         """Scale tyre friction and all body masses (domain randomization); 1.0 restores the model."""
@@ -75,6 +77,7 @@ class CarPhysics:
         mujoco.mj_step(self.model, self.data, nstep=substeps)
         # mj_step leaves positions derived from qpos (wheels, camera) one substep stale: refresh them.
         mujoco.mj_kinematics(self.model, self.data)
+        self._pose = None
 
     @property
     def time(self) -> float:
@@ -84,6 +87,11 @@ class CarPhysics:
     @property
     def pose(self) -> Pose:
         """Planar pose of base_link."""
+        if self._pose is None:
+            self._pose = self._read_pose()
+        return self._pose
+
+    def _read_pose(self) -> Pose:
         q = self.data.qpos
         x, y = q[self._root_q], q[self._root_q + 1]
         w, qx, qy, qz = q[self._root_q + 3 : self._root_q + 7]

@@ -176,11 +176,10 @@ class RoadMask:
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
         """(K,) bool for (K, 2) points in metres; points outside the textured area are off the road."""
-        f = self.frame
-        pts = np.atleast_2d(points)
-        u = ((pts[:, 0] - f.x0) * f.ppm).astype(np.int64)
-        v = ((f.y1 - pts[:, 1]) * f.ppm).astype(np.int64)
-        inside = (u >= 0) & (u < f.width) & (v >= 0) & (v < f.height)
-        out = np.zeros(len(pts), bool)
-        out[inside] = self.mask[v[inside], u[inside]]
+        f, mask = self.frame, self.mask
+        out = np.zeros(len(points), bool)
+        # A plain loop: for the four wheels it is several times faster than numpy's fancy indexing.
+        for i, (x, y) in enumerate(np.asarray(points).tolist()):
+            u, v = int((x - f.x0) * f.ppm), int((f.y1 - y) * f.ppm)
+            out[i] = 0 <= u < f.width and 0 <= v < f.height and bool(mask[v, u])
         return out

@@ -8,6 +8,7 @@ border inside the loop. A closed loop repeats its first row as its last; an open
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from importlib import resources
@@ -220,26 +221,40 @@ class Track:
         start, vec, length = self._seg
         return start[:, 0].copy(), start[:, 1].copy(), vec[:, 0].copy(), vec[:, 1].copy(), 1.0 / length**2
 
+    @cached_property
+    def _segment_list(self) -> list[tuple[float, float, float, float, float, float]]:
+        start, vec, length = self._seg
+        rows = np.column_stack([start, vec, 1.0 / length**2, self.cumulative[:-1]])
+        return [tuple(r) for r in rows.tolist()]
+
     def project_point(self, x: float, y: float, hint: int, window: int = 8) -> Projection:
-        """``project`` for one point near segment ``hint``: the per-step fast path (few small numpy ops)."""
-        sx, sy, vx, vy, inv2 = self._flat
-        n_seg = len(sx)
+        """``project`` for one point near segment ``hint``: the per-step fast path.
+
+        Plain Python over the ~17 segments of the window: for one point that is several times faster
+        than numpy, whose per-call overhead dominates on arrays this small.
+        """
+        segs = self._segment_list
+        n_seg = len(segs)
         if 2 * window + 1 >= n_seg:
             return self.project(np.array([[x, y]]))
-        idx = np.arange(hint - window, hint + window + 1)
-        idx = idx % n_seg if self.closed else idx[(idx >= 0) & (idx < n_seg)]
-        rx, ry = x - sx[idx], y - sy[idx]
-        ax, ay = vx[idx], vy[idx]
-        t = np.clip((rx * ax + ry * ay) * inv2[idx], 0.0, 1.0)
-        dx, dy = rx - t * ax, ry - t * ay
-        d2 = dx * dx + dy * dy
-        b = int(np.argmin(d2))
-        lateral = float(np.sqrt(d2[b])) * (1.0 if ax[b] * ry[b] - ay[b] * rx[b] >= 0 else -1.0)
+        best, best_d2, best_t, best_cross = -1, math.inf, 0.0, 0.0
+        for j in range(hint - window, hint + window + 1):
+            if self.closed:
+                j %= n_seg
+            elif not 0 <= j < n_seg:
+                continue
+            sx, sy, vx, vy, inv2, _ = segs[j]
+            rx, ry = x - sx, y - sy
+            t = min(max((rx * vx + ry * vy) * inv2, 0.0), 1.0)
+            dx, dy = rx - t * vx, ry - t * vy
+            d2 = dx * dx + dy * dy
+            if d2 < best_d2:
+                best, best_d2, best_t, best_cross = j, d2, t, vx * ry - vy * rx
+        lateral = math.copysign(math.sqrt(best_d2), best_cross) if best_cross != 0 else 0.0
         if abs(lateral) >= self.widths.max():  # lost (e.g. a jump): search everything
             return self.project(np.array([[x, y]]))
-        seg = int(idx[b])
-        s = self.cumulative[seg] + t[b] * self._seg[2][seg]
-        return Projection(s=np.array([s]), lateral=np.array([lateral]), segment=np.array([seg]), t=np.array([t[b]]))
+        s = segs[best][5] + best_t * self._seg[2][best]
+        return Projection(s=np.array([s]), lateral=np.array([lateral]), segment=np.array([best]), t=np.array([best_t]))
 
     def _project(self, pts: np.ndarray, segments: np.ndarray) -> Projection:
         start, vec, length = (a[segments] for a in self._seg)
