@@ -10,6 +10,9 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from common.hyperparams import Hyperparameters
+from common.policy import PolicyConfig
+
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", validate_assignment=True)
@@ -91,3 +94,31 @@ class EnvConfig(_Strict):
     """Per-call time limit of the reward function, seconds; None = none."""
     randomization: RandomizationConfig = Field(default_factory=RandomizationConfig)
     """Domain randomization of this env."""
+
+
+class RunConfig(_Strict):
+    """Everything that defines a training run; stored as ``config.json`` in the run so that every process
+    (and a worker on another machine) builds the same world and network."""
+
+    run_id: str
+    """Run identifier: letters, digits, '.', '_' or '-'."""
+    env: EnvConfig = Field(default_factory=EnvConfig)
+    """The simulated world (track, reward, actions, randomization). Its reward_fn and action_space paths are
+    replaced, in every process, by the run's stored reward_function.py and model_metadata.json."""
+    hyperparams: Hyperparameters = Field(default_factory=Hyperparameters)
+    """DeepRacer's hyperparameters.json (plus racer's PPO knobs)."""
+    policy: PolicyConfig = Field(default_factory=PolicyConfig)
+    """The network."""
+    worker_tracks: list[str] = Field(default_factory=list)
+    """Multi-track training: worker k drives worker_tracks[k % len]; empty = every worker on env.track."""
+    segment_steps: int = Field(32, ge=1, le=4096)
+    """Env steps per segment pushed to Redis."""
+    max_policy_lag: int = Field(0, ge=0)
+    """The trainer drops segments whose policy is more than this many versions old. 0 = on-policy as in DeepRacer:
+    workers wait during a PPO update instead of collecting data that would be dropped."""
+    stream_maxlen: int = Field(128, ge=4)
+    """Approximate cap of the segment stream, entries (bounds Redis memory: ~0.6 MB per 32-step segment)."""
+    heartbeat_ttl_s: float = Field(15.0, gt=0)
+    """A worker that has not sent a heartbeat for this long is reported silent, seconds."""
+    seed: int = 0
+    """Base seed: worker k seeds its env with seed + 1000·k, the trainer uses seed."""

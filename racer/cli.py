@@ -37,11 +37,234 @@ def write_json(data: object, target: str | None) -> None:
 
 
 def _user_errors() -> tuple[type[Exception], ...]:
+    from pydantic import ValidationError
+
     from common.action_space import ActionSpaceError
+    from common.hyperparams import HyperparametersError
+    from common.redis_util import RedisUrlError
+    from model_store import StoreError
+    from racer.embedded_redis import RedisStartError
     from sim.reward import RewardFunctionError
     from sim.track import TrackError
 
-    return (TrackError, ActionSpaceError, RewardFunctionError)
+    return (
+        TrackError,
+        ActionSpaceError,
+        RewardFunctionError,
+        HyperparametersError,
+        StoreError,
+        RedisUrlError,
+        RedisStartError,
+        ValidationError,
+        ValueError,
+        FileNotFoundError,
+    )
+
+
+def _setup_logging(verbose: bool = False) -> None:
+    import logging
+
+    logging.basicConfig(
+        level=logging.DEBUG if verbose else logging.INFO,
+        format="%(asctime)s %(name)s %(levelname)s %(message)s",
+    )
+
+
+def _stop_event_on_signals():
+    """A threading.Event set by SIGTERM/SIGINT, so a role process finishes its step and exits cleanly."""
+    import signal
+    import threading
+
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    return stop
+
+
+StoreOpt = Annotated[
+    str, typer.Option("--store", envvar="RACER_STORE", help="s3://bucket/prefix or a directory (runs go in runs/).")
+]
+EndpointOpt = Annotated[
+    str | None, typer.Option("--s3-endpoint", envvar="AWS_ENDPOINT_URL", help="S3 endpoint URL (MinIO, moto).")
+]
+RedisOpt = Annotated[str, typer.Option("--redis", envvar="RACER_REDIS_URL", help="redis://[:password@]host:port/db")]
+
+
+@app.command("train")
+def train_cmd(
+    track: Annotated[str, typer.Option(help="Track name or .npy path.")] = "reinvent_base",
+    workers: Annotated[int, typer.Option(min=1, help="Rollout worker processes.")] = 2,
+    time_limit: Annotated[str | None, typer.Option("--time-limit", help="Stop after this long (90s, 5m, 2h).")] = None,
+    run_id: Annotated[str | None, typer.Option("--run-id", help="Run id (default: run-<UTC time>).")] = None,
+    store: StoreOpt = ".",
+    s3_endpoint: EndpointOpt = None,
+    redis_url: Annotated[str | None, typer.Option("--redis", help="Use this Redis instead of an embedded one.")] = None,
+    reward_fn: Annotated[Path | None, typer.Option("--reward-fn", help="DeepRacer reward function .py.")] = None,
+    action_space: Annotated[Path | None, typer.Option("--action-space", help="DeepRacer model_metadata.json.")] = None,
+    hyperparams: Annotated[Path | None, typer.Option("--hyperparams", help="DeepRacer hyperparameters.json.")] = None,
+    randomization: Annotated[Path | None, typer.Option(help="JSON of domain randomization settings.")] = None,
+    worker_track: Annotated[list[str] | None, typer.Option("--worker-track", help="Per-worker tracks.")] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="Continue the run from its latest checkpoint.")] = False,
+    seed: Annotated[int, typer.Option(help="Base random seed.")] = 0,
+    max_policy_lag: Annotated[int, typer.Option(min=0, help="Drop segments this many versions old.")] = 0,
+    segment_steps: Annotated[int, typer.Option(min=1, help="Env steps per segment sent to Redis.")] = 32,
+) -> None:
+    """Train: an embedded Redis (unless --redis), the PPO trainer and N rollout workers on this machine."""
+    from common.config import RunConfig
+    from model_store import RunStore, open_store
+    from racer.launcher import TrainOptions, new_run_id, run_train
+    from racer.runconfig import build_run, parse_duration
+
+    try:
+        limit = parse_duration(time_limit) if time_limit else None
+        rid = run_id or new_run_id()
+        if resume:
+            if not run_id:
+                fail("--resume needs --run-id")
+            runs = RunStore(open_store(store, s3_endpoint))
+            run = RunConfig.model_validate_json(runs.read_file(rid, "config.json"))
+            files: dict[str, bytes] = {}
+        else:
+            run, files = build_run(
+                rid,
+                track,
+                str(reward_fn) if reward_fn else None,
+                str(action_space) if action_space else None,
+                str(hyperparams) if hyperparams else None,
+                str(randomization) if randomization else None,
+                worker_track,
+                seed,
+            )
+            run = run.model_copy(update={"max_policy_lag": max_policy_lag, "segment_steps": segment_steps})
+        opts = TrainOptions(workers, redis_url, store, s3_endpoint, limit, resume)
+        console.print(f"run [bold]{rid}[/]: {workers} workers on {run.env.track}, store {store}")
+        status = run_train(run, opts, files, console)
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+    except RuntimeError as exc:
+        fail(str(exc))
+    console.print(f"done: {status.get('iteration', 0)} iterations, {status.get('env_steps', 0)} env steps")
+
+
+@app.command("trainer")
+def trainer_cmd(
+    redis_url: RedisOpt,
+    store: StoreOpt = ".",
+    s3_endpoint: EndpointOpt = None,
+    config: Annotated[Path | None, typer.Option(help="RunConfig JSON (written by racer train).")] = None,
+    files: Annotated[Path | None, typer.Option(help="Folder with the run's files (written by racer train).")] = None,
+    run_id: Annotated[str | None, typer.Option("--run-id", envvar="RACER_RUN_ID", help="Run id.")] = None,
+    track: Annotated[str, typer.Option(envvar="RACER_TRACK", help="Track name or .npy path.")] = "reinvent_base",
+    reward_fn: Annotated[Path | None, typer.Option("--reward-fn", envvar="RACER_REWARD_FN")] = None,
+    action_space: Annotated[Path | None, typer.Option("--action-space", envvar="RACER_ACTION_SPACE")] = None,
+    hyperparams: Annotated[Path | None, typer.Option("--hyperparams", envvar="RACER_HYPERPARAMS")] = None,
+    resume: Annotated[bool, typer.Option("--resume", envvar="RACER_RESUME")] = False,
+    time_limit: Annotated[str | None, typer.Option("--time-limit", envvar="RACER_TIME_LIMIT")] = None,
+    threads: Annotated[int, typer.Option(min=1, envvar="RACER_TRAINER_THREADS", help="PyTorch threads.")] = 1,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """Run the PPO trainer role alone (for docker compose and multi-machine runs)."""
+    from common.config import RunConfig
+    from model_store import RunStore, open_store
+    from racer.runconfig import build_run, parse_duration
+    from trainer.process import TrainerOptions, run_trainer
+
+    _setup_logging(verbose)
+    try:
+        run_files: dict[str, bytes] = {}
+        if config:
+            run = RunConfig.model_validate_json(config.read_text())
+            if files:
+                run_files = {p.name: p.read_bytes() for p in files.iterdir() if p.is_file() and p.name != config.name}
+        elif resume:
+            if not run_id:
+                fail("--resume needs --run-id")
+            run = RunConfig.model_validate_json(
+                RunStore(open_store(store, s3_endpoint)).read_file(run_id, "config.json")
+            )
+        else:
+            if not run_id:
+                fail("give --run-id (or RACER_RUN_ID) or --config")
+            run, run_files = build_run(
+                run_id,
+                track,
+                str(reward_fn) if reward_fn else None,
+                str(action_space) if action_space else None,
+                str(hyperparams) if hyperparams else None,
+            )
+        opts = TrainerOptions(
+            redis_url,
+            store,
+            s3_endpoint,
+            resume,
+            parse_duration(time_limit) if time_limit else None,
+            threads,
+            run_files,
+        )
+        run_trainer(run, opts, _stop_event_on_signals())
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+
+
+@app.command("worker")
+def worker_cmd(
+    redis_url: RedisOpt,
+    run_id: Annotated[str, typer.Option("--run-id", envvar="RACER_RUN_ID", help="Run id.")],
+    store: StoreOpt = ".",
+    s3_endpoint: EndpointOpt = None,
+    index: Annotated[int | None, typer.Option(envvar="RACER_WORKER_INDEX", help="Worker index (seed, track).")] = None,
+    worker_id: Annotated[str, typer.Option("--worker-id", envvar="RACER_WORKER_ID")] = "",
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """Run one rollout worker (for docker compose and workers on other machines)."""
+    import secrets
+
+    from rollout_worker.worker import WorkerOptions, run_worker
+
+    _setup_logging(verbose)
+    # Scaled compose workers share one set of options: a random index keeps their seeds apart.
+    k = index if index is not None else secrets.randbelow(1_000_000)
+    try:
+        run_worker(WorkerOptions(run_id, redis_url, store, s3_endpoint, k, worker_id), _stop_event_on_signals())
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+
+
+models_app = typer.Typer(no_args_is_help=True, help="Runs and checkpoints in a store.")
+app.add_typer(models_app, name="models")
+
+
+@models_app.command("ls")
+def models_ls(
+    store: StoreOpt = ".",
+    s3_endpoint: EndpointOpt = None,
+    run_id: Annotated[str | None, typer.Option("--run-id", help="Only this run.")] = None,
+    json_out: Annotated[str | None, typer.Option("--json", help="Write the list as JSON to F (- = stdout).")] = None,
+) -> None:
+    """List checkpoints: run, version, env steps, time, size, latest/best."""
+    import datetime
+
+    from model_store import list_models, open_store
+
+    try:
+        rows = list_models(open_store(store, s3_endpoint), run_id)
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+    if json_out != "-":
+        table = Table("run", "version", "env steps", "created (UTC)", "size", "")
+        for r in rows:
+            created = datetime.datetime.fromtimestamp(r.get("created") or 0, datetime.UTC)
+            marks = " ".join(m for m in ("latest", "best") if r.get(m))
+            table.add_row(
+                r["run_id"],
+                str(r["version"]),
+                str(r.get("env_steps")),
+                f"{created:%Y-%m-%d %H:%M:%S}",
+                f"{(r.get('size_bytes') or 0) / 1e6:.1f} MB",
+                marks,
+            )
+        console.print(table)
+    write_json(rows, json_out)
 
 
 @tracks_app.command("ls")
@@ -97,6 +320,64 @@ def bench_env_cmd(
         table.add_row(f"{part} µs/step", f"{result[f'{part}_us_per_step']:.1f}")
     console.print(table)
     write_json(result, json_out)
+
+
+@bench_app.command("transport")
+def bench_transport_cmd(
+    track: Annotated[str, typer.Option(help="Track name or .npy path.")] = "reinvent_base",
+    segments: Annotated[int, typer.Option(min=3, help="Segments to time.")] = 30,
+    segment_steps: Annotated[int, typer.Option(min=1, help="Env steps per segment.")] = 32,
+    json_out: Annotated[str | None, typer.Option("--json", help="Write the result as JSON to F (- = stdout).")] = None,
+) -> None:
+    """Redis transport cost of a segment as a fraction of the time to simulate it (one core)."""
+    from racer.bench_loop import bench_transport
+    from sim.bench import pin_to_one_core
+
+    pin_to_one_core()
+    result = bench_transport(track, segment_steps, segments)
+    table = Table("figure", "value")
+    for k, v in result.items():
+        table.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
+    console.print(table)
+    write_json(result, json_out)
+
+
+@bench_app.command("loop")
+def bench_loop_cmd(
+    workers: Annotated[str, typer.Option(help="Comma-separated worker counts.")] = "1,2,4",
+    duration: Annotated[str, typer.Option(help="Run time per worker count (90s, 5m).")] = "90s",
+    track: Annotated[str, typer.Option(help="Track name or .npy path.")] = "reinvent_base",
+    hyperparams: Annotated[Path | None, typer.Option("--hyperparams", help="DeepRacer hyperparameters.json.")] = None,
+    json_out: Annotated[str | None, typer.Option("--json", help="Write the result as JSON to F (- = stdout).")] = None,
+) -> None:
+    """End-to-end throughput (env steps/s consumed by the trainer), policy propagation and memory, per N workers."""
+    from racer.bench_loop import bench_loop
+    from racer.runconfig import parse_duration
+
+    seconds = parse_duration(duration)
+    results = [
+        bench_loop(int(n), seconds, track, str(hyperparams) if hyperparams else None) for n in workers.split(",")
+    ]
+    table = Table(
+        "workers", "steps/s consumed", "iterations", "propagation s (median/max)", "trainer MB", "worker MB", "redis MB"
+    )
+    for r in results:
+        prop = (
+            "-"
+            if r["propagation_s_median"] is None
+            else f"{r['propagation_s_median']:.2f}/{r['propagation_s_max']:.2f}"
+        )
+        table.add_row(
+            str(r["workers"]),
+            f"{r['consumed_steps_per_s']:.0f}",
+            str(r["iterations"]),
+            prop,
+            f"{r['trainer_peak_rss_mb']:.0f}",
+            ", ".join(f"{m:.0f}" for m in r["worker_peak_rss_mb"]),
+            f"{r['redis_peak_memory_mb']:.0f}",
+        )
+    console.print(table)
+    write_json(results, json_out)
 
 
 @app.command("drive")

@@ -1,0 +1,146 @@
+"""DeepRacer's ``hyperparameters.json``, read and written in DeepRacer's own format.
+
+DeepRacer's keys are accepted exactly as DeepRacer writes them. racer adds four PPO knobs of its own
+(``clip_epsilon``, ``gae_lambda``, ``value_loss_coef``, ``max_grad_norm``) that may also appear in the
+file. Any other key is an error, so that a typo (``learning_rate`` for ``lr``) is caught instead of
+silently ignored.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+# The keys DeepRacer itself writes, in the order its console writes them.
+DEEPRACER_KEYS: tuple[str, ...] = (
+    "batch_size",
+    "beta_entropy",
+    "discount_factor",
+    "e_greedy_value",
+    "epsilon_steps",
+    "exploration_type",
+    "loss_type",
+    "lr",
+    "num_episodes_between_training",
+    "num_epochs",
+    "stack_size",
+    "term_cond_avg_score",
+    "term_cond_max_episodes",
+)
+RACER_KEYS: tuple[str, ...] = ("clip_epsilon", "gae_lambda", "value_loss_coef", "max_grad_norm")
+
+HUBER = "huber"
+MEAN_SQUARED_ERROR = "mean squared error"
+
+
+class HyperparametersError(ValueError):
+    """A hyperparameters file that cannot be used; the one-line message names the file and the bad key."""
+
+
+class Hyperparameters(BaseModel):
+    """Training hyperparameters: DeepRacer's keys plus racer's PPO knobs."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, validate_assignment=True)
+
+    batch_size: int = Field(64, ge=1)
+    """PPO minibatch size, steps (env transitions) per gradient step."""
+    beta_entropy: float = Field(0.01, ge=0)
+    """Entropy bonus coefficient, dimensionless (weight of the mean policy entropy in the loss)."""
+    discount_factor: float = Field(0.999, gt=0, le=1)
+    """Discount γ per env step, dimensionless."""
+    e_greedy_value: float = Field(1.0, ge=0, le=1)
+    """DeepRacer's initial ε for ε-greedy exploration, a probability (kept for compatibility; PPO samples)."""
+    epsilon_steps: int = Field(10000, ge=0)
+    """DeepRacer's ε decay length, env steps (kept for compatibility)."""
+    exploration_type: Literal["categorical", "additive_noise"] = "categorical"
+    """Exploration: ``categorical`` (sample a discrete policy) or ``additive_noise`` (continuous policy)."""
+    loss_type: Literal["huber", "mean squared error"] = HUBER
+    """Value-function loss: ``huber`` or ``mean squared error`` (``mse`` is accepted and stored as the latter)."""
+    lr: float = Field(0.0003, gt=0)
+    """Adam learning rate, per gradient step."""
+    num_episodes_between_training: int = Field(20, ge=1)
+    """Episodes collected between two policy updates, episodes."""
+    num_epochs: int = Field(10, ge=1)
+    """Passes over the collected batch per policy update, epochs."""
+    stack_size: int = Field(1, ge=1, le=8)
+    """Consecutive camera frames stacked into one observation, frames."""
+    term_cond_avg_score: float = 350.0
+    """Stop training when the mean episode reward reaches this, reward units."""
+    term_cond_max_episodes: int = Field(1000, ge=1)
+    """Stop training after this many episodes, episodes."""
+
+    clip_epsilon: float = Field(0.2, gt=0, lt=1)
+    """racer: PPO clip range ε of the probability ratio, dimensionless."""
+    gae_lambda: float = Field(0.95, ge=0, le=1)
+    """racer: GAE λ, dimensionless (1 = Monte-Carlo advantages, 0 = one-step TD)."""
+    value_loss_coef: float = Field(0.5, ge=0)
+    """racer: weight of the value loss in the total loss, dimensionless."""
+    max_grad_norm: float = Field(0.5, gt=0)
+    """racer: global gradient-norm clip, L2 norm of all parameter gradients."""
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_bools(cls, value: Any) -> Any:
+        # JSON true/false would otherwise pass as 1/0 for a number; no field here is a flag.
+        if isinstance(value, bool):
+            raise ValueError("expected a number or a string, not true/false")
+        return value
+
+    @field_validator("loss_type", mode="before")
+    @classmethod
+    def _mse_alias(cls, value: Any) -> Any:
+        # "mse" is common shorthand; store DeepRacer's spelling so to_json() writes what DeepRacer reads.
+        return MEAN_SQUARED_ERROR if value == "mse" else value
+
+    @property
+    def value_loss_kind(self) -> Literal["huber", "mse"]:
+        """``loss_type`` as the trainer's ``value_loss`` names it."""
+        return "huber" if self.loss_type == HUBER else "mse"
+
+    def to_json(self) -> str:
+        """hyperparameters.json text as DeepRacer writes it: every DeepRacer key, in DeepRacer's order.
+
+        racer's own PPO knobs are added only where they differ from their defaults, so a default file is
+        exactly DeepRacer's and a non-default one still round-trips through ``load_hyperparameters``.
+        """
+        data = {key: getattr(self, key) for key in DEEPRACER_KEYS}
+        for key in RACER_KEYS:
+            if getattr(self, key) != type(self).model_fields[key].default:
+                data[key] = getattr(self, key)
+        return json.dumps(data, indent=4)
+
+
+def load_hyperparameters(path: str | Path) -> Hyperparameters:
+    """Read a ``hyperparameters.json``; missing keys take their defaults.
+
+    Raises HyperparametersError with a one-line message naming the file and the bad key and value.
+    """
+    p = Path(path)
+    where = f"hyperparameters file {str(p)!r}"
+    try:
+        data = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise HyperparametersError(f"{where} does not exist") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise HyperparametersError(f"{where} is not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise HyperparametersError(f"{where}: expected a JSON object, got {type(data).__name__}")
+    try:
+        return Hyperparameters.model_validate(data)
+    except ValidationError as exc:
+        raise HyperparametersError(f"{where}: {_describe(exc)}") from None
+
+
+def _describe(exc: ValidationError) -> str:
+    """The validation errors on one line: ``key = value: reason; ...``."""
+    parts = []
+    for err in exc.errors():
+        key = ".".join(str(v) for v in err["loc"]) or "file"
+        if err["type"] == "extra_forbidden":
+            parts.append(f"unknown key {key!r} (allowed: {', '.join(DEEPRACER_KEYS + RACER_KEYS)})")
+        else:
+            parts.append(f"{key} = {json.dumps(err['input'], default=repr)}: {err['msg']}")
+    return "; ".join(parts)

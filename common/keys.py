@@ -1,0 +1,63 @@
+"""Every Redis key and channel racer uses, in one place, all under ``racer:{run_id}:``."""
+
+from __future__ import annotations
+
+import re
+
+PREFIX = "racer"
+_RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+
+
+def check_run_id(run_id: str) -> str:
+    """Return ``run_id`` if it is a valid run id (letters, digits, ``._-``; ≤ 128), else raise ValueError."""
+    if not _RUN_ID.match(run_id):
+        raise ValueError(f"run id {run_id!r} is not valid: use letters, digits, '.', '_' or '-' (at most 128)")
+    return run_id
+
+
+class Keys:
+    """Key names of one run."""
+
+    def __init__(self, run_id: str) -> None:
+        self.run_id = check_run_id(run_id)
+        self.base = f"{PREFIX}:{run_id}"
+
+    @property
+    def segments(self) -> str:
+        """Stream of experience segments, workers → trainer (capped with MAXLEN ~)."""
+        return f"{self.base}:segments"
+
+    @property
+    def policy(self) -> str:
+        """String key: JSON of the newest policy version (PolicyVersion)."""
+        return f"{self.base}:policy"
+
+    @property
+    def policy_channel(self) -> str:
+        """Pub/sub channel: a PolicyVersion JSON each time a new policy is published."""
+        return f"{self.base}:policy:updates"
+
+    def heartbeat(self, worker_id: str) -> str:
+        """String key with a TTL: a worker's last heartbeat (Heartbeat JSON)."""
+        return f"{self.base}:heartbeat:{worker_id}"
+
+    @property
+    def heartbeat_pattern(self) -> str:
+        """SCAN pattern matching every worker's heartbeat key."""
+        return f"{self.base}:heartbeat:*"
+
+    @property
+    def trainer_status(self) -> str:
+        """String key with a TTL: the trainer's progress (TrainerStatus JSON), for `racer train`'s display."""
+        return f"{self.base}:trainer"
+
+    @property
+    def training(self) -> str:
+        """String key with a TTL, present while the trainer runs a PPO update (value: the version it trains from).
+        Workers whose next segment would be too old to use wait instead of burning the CPU the update needs."""
+        return f"{self.base}:training"
+
+    @property
+    def stop(self) -> str:
+        """String key: set to ask every process of the run to stop (value: the reason)."""
+        return f"{self.base}:stop"

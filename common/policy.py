@@ -1,0 +1,298 @@
+"""The actor-critic networks, shared by the trainer and the rollout workers.
+
+Observations are uint8 camera frames of shape (B, H, W, C), channels last as the env produces them, with
+C = stack_size stacked grayscale frames; the network scales them to [0, 1] and moves channels first itself.
+
+Two trunks, named after DeepRacer's model_metadata ``neural_network``:
+
+* ``shallow`` (DEEP_CONVOLUTIONAL_NETWORK_SHALLOW), DeepRacer's 3-layer CNN:
+  conv 32 8×8/4 → conv 64 4×4/2 → conv 64 3×3/1 → dense 512, each followed by ReLU.
+  On 120×160 frames the last conv gives 64×11×16 = 11264 features.
+* ``deep`` (DEEP_CONVOLUTIONAL_NETWORK / _DEEP), racer's 4-conv variant, not DeepRacer's exact network:
+  the shallow convs plus conv 128 3×3/1 → dense 512. On 120×160 frames the last conv gives 128×9×14.
+
+Optional BatchNorm2d after each conv (before its ReLU) and Dropout before the dense layer. The policy head gives
+logits of a Categorical (discrete) or the mean of a diagonal Gaussian (continuous) whose log-std is a learned
+state-independent parameter. Continuous actions are in the env's units and are not squashed or clipped by the
+distribution: the env clips them. The Gaussian's mean is mid + half * head(h) and its std half * exp(log_std),
+with mid and half the centre and half-width of the action range, so one initialization suits degrees and m/s.
+
+Checkpoints are serialized with ``torch.save`` and read back with ``torch.load(weights_only=True)``, which
+refuses any pickled object other than tensors and plain containers.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import pickle
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+from torch import nn
+from torch.distributions import Categorical, Distribution, Independent, Normal
+
+NetworkName = Literal["shallow", "deep"]
+ActionKind = Literal["discrete", "continuous"]
+
+# DeepRacer's model_metadata "neural_network" names → racer's trunks.
+_METADATA_NETWORKS: dict[str, NetworkName] = {
+    "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW": "shallow",
+    "DEEP_CONVOLUTIONAL_NETWORK": "deep",
+    "DEEP_CONVOLUTIONAL_NETWORK_DEEP": "deep",
+}
+# (out_channels, kernel, stride) of each conv layer.
+_CONV_LAYERS: dict[NetworkName, tuple[tuple[int, int, int], ...]] = {
+    "shallow": ((32, 8, 4), (64, 4, 2), (64, 3, 1)),
+    "deep": ((32, 8, 4), (64, 4, 2), (64, 3, 1), (128, 3, 1)),
+}
+HIDDEN = 512
+"""Width of the dense layer after the convolutions, units."""
+
+
+class CheckpointError(ValueError):
+    """Bytes that are not a safe, well-formed state dict or checkpoint."""
+
+
+class PolicyConfig(BaseModel):
+    """Architecture of the actor-critic network."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    network: NetworkName = "shallow"
+    """Convolutional trunk: ``shallow`` (DeepRacer's 3 convs) or ``deep`` (4 convs)."""
+    dropout: float = Field(0.0, ge=0, lt=1)
+    """Dropout probability before the dense layer; 0 = no Dropout module."""
+    batch_norm: bool = False
+    """BatchNorm2d after each convolution."""
+    l2: float = Field(0.0, ge=0)
+    """L2 weight decay, used by the trainer's optimizer (not by the network), per gradient step."""
+    stack_size: int = Field(1, ge=1, le=8)
+    """Stacked camera frames per observation, frames: the observation's channel count."""
+
+
+def network_from_metadata(name: str) -> NetworkName:
+    """racer's trunk name for DeepRacer's model_metadata ``neural_network`` value."""
+    try:
+        return _METADATA_NETWORKS[name]
+    except KeyError:
+        raise ValueError(f"unknown neural_network {name!r}; expected one of {sorted(_METADATA_NETWORKS)}") from None
+
+
+def conv_output_shape(obs_shape: tuple[int, int, int], network: NetworkName) -> tuple[int, int, int]:
+    """(channels, height, width) of the last convolution's output for (H, W, C) frames (valid padding)."""
+    h, w = obs_shape[0], obs_shape[1]
+    for _, kernel, stride in _CONV_LAYERS[network]:
+        h, w = (h - kernel) // stride + 1, (w - kernel) // stride + 1
+        if h < 1 or w < 1:
+            raise ValueError(f"frames of {obs_shape[0]}×{obs_shape[1]} are too small for the {network} network")
+    return _CONV_LAYERS[network][-1][0], h, w
+
+
+def _init(layer: nn.Module, gain: float) -> nn.Module:
+    """Orthogonal weights and zero biases, as in CleanRL's ``layer_init``."""
+    nn.init.orthogonal_(layer.weight, gain)
+    nn.init.zeros_(layer.bias)
+    return layer
+
+
+def _conv_trunk(in_channels: int, cfg: PolicyConfig) -> nn.Sequential:
+    """The convolutions of ``cfg.network``, each with optional BatchNorm2d and a ReLU."""
+    layers: list[nn.Module] = []
+    for out_channels, kernel, stride in _CONV_LAYERS[cfg.network]:
+        layers.append(_init(nn.Conv2d(in_channels, out_channels, kernel, stride), math.sqrt(2)))
+        if cfg.batch_norm:
+            layers.append(nn.BatchNorm2d(out_channels))
+        layers.append(nn.ReLU())
+        in_channels = out_channels
+    return nn.Sequential(*layers)
+
+
+class ActorCritic(nn.Module):
+    """A shared CNN trunk with a policy head and a value head.
+
+    ``forward`` returns the distribution parameters (logits, or the Gaussian mean in env units) and V(o).
+    For networks with dropout or batch norm, rollout workers should call ``eval()`` before acting.
+    """
+
+    def __init__(
+        self,
+        obs_shape: tuple[int, int, int],
+        action_kind: ActionKind,
+        n_actions: int | None = None,
+        action_low: tuple[float, ...] | None = None,
+        action_high: tuple[float, ...] | None = None,
+        cfg: PolicyConfig | None = None,
+    ) -> None:
+        super().__init__()
+        cfg = cfg or PolicyConfig()
+        self.obs_shape = tuple(int(v) for v in obs_shape)
+        if len(self.obs_shape) != 3 or self.obs_shape[2] != cfg.stack_size:
+            raise ValueError(f"obs_shape {obs_shape} is not (H, W, stack_size={cfg.stack_size})")
+        self.action_kind = action_kind
+        self.cfg = cfg
+        convs = _conv_trunk(self.obs_shape[2], cfg)
+        self.conv_out_shape = conv_output_shape(self.obs_shape, cfg.network)
+        dense: list[nn.Module] = [nn.Flatten()] + ([nn.Dropout(cfg.dropout)] if cfg.dropout > 0 else [])
+        dense += [_init(nn.Linear(math.prod(self.conv_out_shape), HIDDEN), math.sqrt(2)), nn.ReLU()]
+        self.trunk = nn.Sequential(*convs, *dense)
+        self.value_head = _init(nn.Linear(HIDDEN, 1), 1.0)
+        self.action_dim = self._build_policy_head(n_actions, action_low, action_high)
+
+    def _build_policy_head(
+        self, n_actions: int | None, low: tuple[float, ...] | None, high: tuple[float, ...] | None
+    ) -> int:
+        """Create ``policy_head`` (and for continuous actions the Gaussian's scale); return the head's width."""
+        if self.action_kind == "discrete":
+            if n_actions is None or n_actions < 1:
+                raise ValueError(f"a discrete policy needs n_actions >= 1, got {n_actions}")
+            self.policy_head = _init(nn.Linear(HIDDEN, n_actions), 0.01)
+            return n_actions
+        if self.action_kind != "continuous":
+            raise ValueError(f"action_kind must be 'discrete' or 'continuous', got {self.action_kind!r}")
+        if low is None or high is None or len(low) != len(high) or not low:
+            raise ValueError(f"a continuous policy needs action_low and action_high of one length, got {low}, {high}")
+        lo, hi = torch.tensor(low, dtype=torch.float32), torch.tensor(high, dtype=torch.float32)
+        if not (torch.isfinite(lo).all() and torch.isfinite(hi).all() and (lo <= hi).all()):
+            raise ValueError(f"action bounds are not finite and ordered: low {low}, high {high}")
+        # The head works in units of half the range, centred on the range: with the 0.01 init the initial
+        # mean is mid-range and the initial std (exp(0) = 1) half the range, whatever the units.
+        half = (hi - lo) / 2  # a zero-width range (low == high) gets a unit scale: a Normal needs std > 0
+        self.register_buffer("action_mid", (hi + lo) / 2)
+        self.register_buffer("action_half", torch.where(half > 0, half, torch.ones_like(half)))
+        self.policy_head = _init(nn.Linear(HIDDEN, len(low)), 0.01)
+        self.log_std = nn.Parameter(torch.zeros(len(low)))
+        return len(low)
+
+    def features(self, obs: torch.Tensor) -> torch.Tensor:
+        """The trunk's 512 features of a uint8 (B, H, W, C) batch."""
+        if obs.dtype != torch.uint8:
+            raise TypeError(f"observations must be uint8 camera frames, got {obs.dtype}")
+        if tuple(obs.shape[1:]) != self.obs_shape:
+            raise ValueError(f"observations of shape {tuple(obs.shape)}, expected (B, *{self.obs_shape})")
+        x = obs.permute(0, 3, 1, 2).float() / 255.0
+        return self.trunk(x)
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(logits (B, n) or Gaussian mean (B, d) in env units, V(o) (B,)) of a uint8 (B, H, W, C) batch."""
+        h = self.features(obs)
+        params = self.policy_head(h)
+        if self.action_kind == "continuous":
+            params = self.action_mid + self.action_half * params
+        return params, self.value_head(h).squeeze(-1)
+
+    def _dist(self, params: torch.Tensor) -> Distribution:
+        """The action distribution for ``forward``'s parameters."""
+        if self.action_kind == "discrete":
+            return Categorical(logits=params)
+        std = (self.action_half * self.log_std.exp()).expand_as(params)
+        return Independent(Normal(params, std), 1)
+
+    def _mode(self, params: torch.Tensor) -> torch.Tensor:
+        """The most likely action: the argmax of the logits, or the Gaussian's mean."""
+        return params.argmax(-1) if self.action_kind == "discrete" else params
+
+    def distribution(self, obs: torch.Tensor) -> Distribution:
+        """π(·|o): Categorical over action indices, or Independent(Normal) over actions in env units."""
+        return self._dist(self(obs)[0])
+
+    @torch.no_grad()
+    def act(self, obs: torch.Tensor, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(action, log π(action|o), V(o)) for a uint8 batch; deterministic = argmax / mean action."""
+        params, value = self(obs)
+        dist = self._dist(params)
+        action = self._mode(params) if deterministic else dist.sample()
+        return action, dist.log_prob(action), value
+
+    def act_numpy(self, obs: np.ndarray, deterministic: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``act`` on a numpy uint8 (B, H, W, C) batch: (int64 (B,) or float32 (B, d) actions, float32 log-probs,
+        float32 values)."""
+        if obs.ndim != 4:
+            raise ValueError(f"act_numpy takes a batch (B, H, W, C), got shape {obs.shape}")
+        device = self.value_head.weight.device
+        action, logp, value = self.act(torch.from_numpy(np.ascontiguousarray(obs)).to(device), deterministic)
+        action, logp, value = action.cpu(), logp.cpu(), value.cpu()
+        action_np = action.numpy().astype(np.int64 if self.action_kind == "discrete" else np.float32)
+        return action_np, logp.numpy().astype(np.float32), value.numpy().astype(np.float32)
+
+    def evaluate(self, obs: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(log π(actions|o), entropy of π(·|o), V(o)), each (B,), with gradients, for the trainer."""
+        params, value = self(obs)
+        dist = self._dist(params)
+        return dist.log_prob(actions), dist.entropy(), value
+
+
+def build_policy(
+    obs_shape: tuple[int, int, int], action_space_spec: dict[str, Any], cfg: PolicyConfig | None = None
+) -> ActorCritic:
+    """An ActorCritic for ``{"kind": "discrete", "n": 10}`` or ``{"kind": "continuous", "low": [..], "high": [..]}``."""
+    kind = action_space_spec.get("kind")
+    if kind == "discrete":
+        return ActorCritic(obs_shape, "discrete", n_actions=int(action_space_spec["n"]), cfg=cfg)
+    if kind == "continuous":
+        low = tuple(float(v) for v in action_space_spec["low"])
+        high = tuple(float(v) for v in action_space_spec["high"])
+        return ActorCritic(obs_shape, "continuous", action_low=low, action_high=high, cfg=cfg)
+    raise ValueError(f"action_space_spec kind must be 'discrete' or 'continuous', got {kind!r}")
+
+
+def action_space_spec(space: Any) -> dict[str, Any]:
+    """The ``build_policy`` spec of a ``common.action_space.ActionSpace`` (continuous: [steering°, speed m/s])."""
+    if space.discrete:
+        return {"kind": "discrete", "n": space.n}
+    rng = space.action_space
+    return {
+        "kind": "continuous",
+        "low": [rng.steering_angle.low, rng.speed.low],
+        "high": [rng.steering_angle.high, rng.speed.high],
+    }
+
+
+def state_dict_to_bytes(sd: dict[str, Any]) -> bytes:
+    """A state dict as ``torch.save`` bytes."""
+    buf = io.BytesIO()
+    torch.save(sd, buf)
+    return buf.getvalue()
+
+
+def state_dict_from_bytes(data: bytes) -> dict[str, Any]:
+    """A state dict from ``state_dict_to_bytes`` bytes, on the CPU; never unpickles arbitrary objects."""
+    sd = _safe_load(data)
+    if not isinstance(sd, dict):
+        raise CheckpointError(f"expected a state dict, got {type(sd).__name__}")
+    return sd
+
+
+def checkpoint_to_bytes(model_sd: dict[str, Any], optimizer_sd: dict[str, Any] | None = None) -> bytes:
+    """A model state dict and an optional optimizer state dict as one ``torch.save`` blob."""
+    return state_dict_to_bytes({"model": model_sd, "optimizer": optimizer_sd})
+
+
+def checkpoint_from_bytes(data: bytes) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """(model state dict, optimizer state dict or None) from ``checkpoint_to_bytes`` bytes; loads weights only."""
+    ckpt = _safe_load(data)
+    if not isinstance(ckpt, dict) or not isinstance(ckpt.get("model"), dict):
+        raise CheckpointError("not a checkpoint: expected a dict with a 'model' state dict")
+    optimizer = ckpt.get("optimizer")
+    if optimizer is not None and not isinstance(optimizer, dict):
+        raise CheckpointError(f"checkpoint 'optimizer' is a {type(optimizer).__name__}, not a state dict")
+    return ckpt["model"], optimizer
+
+
+def _safe_load(data: bytes) -> Any:
+    """``torch.load`` restricted to tensors and plain containers (weights_only), mapped to the CPU."""
+    try:
+        return torch.load(io.BytesIO(data), weights_only=True, map_location="cpu")
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, AttributeError) as exc:
+        # The weights-only unpickler reports a refused global as UnpicklingError; corrupt bytes as the others.
+        raise CheckpointError(f"refused to load checkpoint bytes: {_reason(exc)}") from None
+
+
+def _reason(exc: Exception) -> str:
+    """One line of torch.load's long message: the refused global when there is one."""
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    refused = [line for line in lines if "Unsupported global" in line]
+    line = (refused or lines or [type(exc).__name__])[0]
+    return line.split(" Please use ")[0]  # drop torch's advice to allowlist the global

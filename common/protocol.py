@@ -1,0 +1,286 @@
+"""The wire protocol between rollout workers and the trainer.
+
+A segment is a fixed number of consecutive env steps of one worker, sent as one Redis stream entry:
+a JSON ``header`` field plus one field of raw bytes per numpy array (C order, little-endian). Nothing
+is pickled. ``decode_segment`` validates everything it reads and raises ProtocolError with a short
+reason, which the trainer counts and logs before dropping the entry.
+
+Arrays of a segment of T steps (obs shape (H, W, C), uint8):
+
+==============  ========  =================  =====================================================
+name            dtype     shape              meaning
+==============  ========  =================  =====================================================
+obs             uint8     (T, H, W, C)       o_t, the observation the action was chosen from
+next_obs        uint8     (1, H, W, C)       o_T, the observation after the last step
+actions         int64     (T,)               discrete action index (continuous: float32 (T, 2))
+rewards         float32   (T,)               r_t from the user's reward function
+terminated      uint8     (T,)               1 if the episode ended at step t (off track, lap...)
+truncated       uint8     (T,)               1 if the episode hit its time limit at step t
+logp            float32   (T,)               log π(a_t | o_t) under the behaviour policy
+values          float32   (T,)               V(o_t) under the behaviour policy
+next_values     float32   (T,)               V(o_{t+1}): the final observation's value for a
+                                             truncated step and the last step, else V(o_{t+1})
+episode_id      int64     (T,)               worker-local episode number of each step
+==============  ========  =================  =====================================================
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+SCHEMA_VERSION = 1
+MAX_HEADER_BYTES = 1 << 16
+
+_ARRAY_DTYPES: dict[str, tuple[str, ...]] = {
+    "obs": ("uint8",),
+    "next_obs": ("uint8",),
+    "actions": ("int64", "float32"),
+    "rewards": ("float32",),
+    "terminated": ("uint8",),
+    "truncated": ("uint8",),
+    "logp": ("float32",),
+    "values": ("float32",),
+    "next_values": ("float32",),
+    "episode_id": ("int64",),
+}
+
+
+class ProtocolError(ValueError):
+    """A message that does not follow the protocol; ``reason`` is a short tag for drop counters."""
+
+    def __init__(self, reason: str, detail: str = "") -> None:
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class EpisodeSummary:
+    """An episode that ended inside a segment, as the worker saw it."""
+
+    episode_id: int
+    steps: int
+    progress: float
+    """Percent of a lap, 0..100."""
+    reward: float
+    """Sum of rewards."""
+    status: str
+    """DeepRacer episode_status at the end (off_track, lap_complete, ...)."""
+    track: str = ""
+    lap_time_s: float | None = None
+    """Simulated seconds for a completed lap, else None."""
+
+
+@dataclass
+class Segment:
+    """T consecutive steps of one worker's env (see the module docstring for the arrays)."""
+
+    run_id: str
+    worker_id: str
+    policy_version: int
+    env_seed: int
+    arrays: dict[str, np.ndarray]
+    episodes: list[EpisodeSummary] = field(default_factory=list)
+    created: float = field(default_factory=time.time)
+
+    @property
+    def steps(self) -> int:
+        """Number of env steps in the segment."""
+        return int(self.arrays["rewards"].shape[0])
+
+
+def encode_segment(seg: Segment) -> dict[str, bytes]:
+    """Stream-entry fields for a segment: ``header`` JSON plus raw bytes per array."""
+    specs = {}
+    fields: dict[str, bytes] = {}
+    for name, arr in seg.arrays.items():
+        a = np.ascontiguousarray(arr)
+        if a.dtype == np.bool_:
+            a = a.astype(np.uint8)
+        specs[name] = {"dtype": str(a.dtype), "shape": list(a.shape)}
+        fields[f"a:{name}"] = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes()
+    header = {
+        "schema": SCHEMA_VERSION,
+        "kind": "segment",
+        "run_id": seg.run_id,
+        "worker_id": seg.worker_id,
+        "policy_version": seg.policy_version,
+        "env_seed": seg.env_seed,
+        "steps": seg.steps,
+        "episode_ids": sorted({int(v) for v in seg.arrays["episode_id"]}),
+        "episodes": [e.__dict__ for e in seg.episodes],
+        "created": seg.created,
+        "arrays": specs,
+    }
+    fields["header"] = json.dumps(header, separators=(",", ":")).encode()
+    return fields
+
+
+def decode_segment(
+    fields: dict[bytes | str, bytes],
+    run_id: str,
+    obs_shape: tuple[int, ...],
+    n_actions: int | None,
+) -> Segment:
+    """Validate stream-entry fields and rebuild the Segment; raise ProtocolError on anything malformed.
+
+    ``n_actions`` is the number of discrete actions (None for a continuous space of 2 values).
+    """
+    f = {(k.decode() if isinstance(k, bytes) else k): v for k, v in fields.items()}
+    header = _header(f)
+    if header.get("run_id") != run_id:
+        raise ProtocolError("other_run", f"run_id {header.get('run_id')!r}")
+    steps = header.get("steps")
+    if not isinstance(steps, int) or steps < 1:
+        raise ProtocolError("bad_header", f"steps {steps!r}")
+    arrays = {name: _array(f, header, name) for name in _ARRAY_DTYPES}
+    _check_shapes(arrays, steps, tuple(obs_shape), n_actions)
+    return Segment(
+        run_id=run_id,
+        worker_id=_str(header, "worker_id"),
+        policy_version=_int(header, "policy_version"),
+        env_seed=_int(header, "env_seed"),
+        arrays=arrays,
+        episodes=_episodes(header),
+        created=float(header.get("created", 0.0)),
+    )
+
+
+def _header(f: dict[str, bytes]) -> dict:
+    raw = f.get("header")
+    if raw is None:
+        raise ProtocolError("no_header")
+    if len(raw) > MAX_HEADER_BYTES:
+        raise ProtocolError("bad_header", "header too large")
+    try:
+        header = json.loads(raw)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ProtocolError("bad_header", str(exc)) from None
+    if not isinstance(header, dict) or header.get("kind") != "segment":
+        raise ProtocolError("bad_header", "not a segment header")
+    if header.get("schema") != SCHEMA_VERSION:
+        raise ProtocolError("schema", f"schema {header.get('schema')!r}, expected {SCHEMA_VERSION}")
+    return header
+
+
+def _array(f: dict[str, bytes], header: dict, name: str) -> np.ndarray:
+    spec = (header.get("arrays") or {}).get(name)
+    raw = f.get(f"a:{name}")
+    if not isinstance(spec, dict) or raw is None:
+        raise ProtocolError("missing_array", name)
+    dtype, shape = spec.get("dtype"), spec.get("shape")
+    if dtype not in _ARRAY_DTYPES[name]:
+        raise ProtocolError("bad_dtype", f"{name}: {dtype!r}")
+    if not isinstance(shape, list) or not all(isinstance(v, int) and v >= 0 for v in shape):
+        raise ProtocolError("bad_shape", f"{name}: {shape!r}")
+    dt = np.dtype(dtype).newbyteorder("<")
+    if len(raw) != dt.itemsize * math.prod(shape):
+        raise ProtocolError("bad_length", f"{name}: {len(raw)} bytes for {shape} {dtype}")
+    return np.frombuffer(raw, dtype=dt).reshape(shape).astype(dtype, copy=False)
+
+
+def _check_shapes(a: dict[str, np.ndarray], steps: int, obs_shape: tuple, n_actions: int | None) -> None:
+    expect = {
+        "obs": (steps, *obs_shape),
+        "next_obs": (1, *obs_shape),
+        "actions": (steps,) if n_actions is not None else (steps, 2),
+    }
+    for name in _ARRAY_DTYPES:
+        want = expect.get(name, (steps,))
+        if a[name].shape != want:
+            raise ProtocolError("bad_shape", f"{name}: {a[name].shape}, expected {want}")
+    for name in ("rewards", "logp", "values", "next_values"):
+        if not np.all(np.isfinite(a[name])):
+            raise ProtocolError("non_finite", name)
+    act = a["actions"]
+    if n_actions is not None:
+        if act.dtype != np.int64 or act.min() < 0 or act.max() >= n_actions:
+            raise ProtocolError("bad_action", f"discrete actions outside 0..{n_actions - 1}")
+    elif act.dtype != np.float32 or not np.all(np.isfinite(act)):
+        raise ProtocolError("bad_action", "continuous actions must be finite float32")
+    for name in ("terminated", "truncated"):
+        if a[name].max(initial=0) > 1:
+            raise ProtocolError("bad_flag", name)
+
+
+def _str(h: dict, key: str) -> str:
+    v = h.get(key)
+    if not isinstance(v, str) or not v or len(v) > 128:
+        raise ProtocolError("bad_header", f"{key} {v!r}")
+    return v
+
+
+def _int(h: dict, key: str) -> int:
+    v = h.get(key)
+    if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+        raise ProtocolError("bad_header", f"{key} {v!r}")
+    return v
+
+
+def _episodes(h: dict) -> list[EpisodeSummary]:
+    out = []
+    for e in h.get("episodes") or []:
+        try:
+            out.append(EpisodeSummary(**e))
+        except TypeError as exc:
+            raise ProtocolError("bad_header", f"episode summary: {exc}") from None
+    return out
+
+
+@dataclass(frozen=True)
+class PolicyVersion:
+    """A published policy: its version and where its checkpoint is in the store."""
+
+    version: int
+    checkpoint_key: str
+    created: float
+
+    def to_json(self) -> str:
+        """JSON text for Redis."""
+        return json.dumps(self.__dict__)
+
+    @classmethod
+    def from_json(cls, raw: bytes | str) -> PolicyVersion:
+        """Parse and validate; raise ProtocolError if malformed."""
+        try:
+            d = json.loads(raw)
+            pv = cls(version=int(d["version"]), checkpoint_key=str(d["checkpoint_key"]), created=float(d["created"]))
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ProtocolError("bad_policy_version", str(exc)) from None
+        if pv.version < 0:
+            raise ProtocolError("bad_policy_version", f"version {pv.version}")
+        return pv
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    """A worker's liveness and progress, kept in a key with a TTL."""
+
+    worker_id: str
+    pid: int
+    host: str
+    policy_version: int
+    env_steps: int
+    segments: int
+    time: float
+    track: str = ""
+    policy_loaded_at: float = 0.0
+    """Wall-clock time the worker started acting with ``policy_version``, epoch seconds."""
+    max_rss_mb: float = 0.0
+    """Peak resident memory of the worker process, MB."""
+
+    def to_json(self) -> str:
+        """JSON text for Redis."""
+        return json.dumps(self.__dict__)
+
+    @classmethod
+    def from_json(cls, raw: bytes | str) -> Heartbeat:
+        """Parse and validate; raise ProtocolError if malformed."""
+        try:
+            return cls(**json.loads(raw))
+        except (ValueError, TypeError) as exc:
+            raise ProtocolError("bad_heartbeat", str(exc)) from None

@@ -1,0 +1,249 @@
+"""The run layout of DESIGN.md on top of any ObjectStore.
+
+::
+
+    runs/{run_id}/checkpoints/{version:09d}.pt     checkpoint bytes (produced by the caller)
+    runs/{run_id}/checkpoints/{version:09d}.json   its metadata
+    runs/{run_id}/latest.json, best.json           pointers: {"version": N, ...that checkpoint's metadata}
+    runs/{run_id}/{name}                           run files: model_metadata.json, reward_function.py, ...
+
+A checkpoint is whole once its .json exists: the .pt is written first, then the .json, then (last) the pointer, so a
+crash at any point leaves every pointer naming a whole checkpoint. Readers ignore a .pt without its .json.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from typing import Any, Literal
+
+from model_store.store import ObjectStore, StoreError, StoreKeyError, check_key
+
+PointerName = Literal["latest", "best"]
+POINTERS: tuple[str, ...] = ("latest", "best")
+
+_RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+_CKPT_NAME = re.compile(r"^(\d{9})\.(pt|json)$")
+
+
+def check_run_id(run_id: str) -> str:
+    """Return ``run_id`` if valid (``^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$``), else raise ValueError naming it."""
+    if not isinstance(run_id, str) or not _RUN_ID.match(run_id) or run_id in (".", ".."):
+        raise ValueError(f"invalid run id {run_id!r}: use 1-128 of A-Z a-z 0-9 . _ - starting with a letter or digit")
+    return run_id
+
+
+def _check_version(version: int) -> int:
+    # bool is an int subclass; True as a version is always a bug.
+    if isinstance(version, bool) or not isinstance(version, int) or not 0 <= version < 10**9:
+        raise ValueError(f"invalid checkpoint version {version!r}: an int in [0, 999999999]")
+    return version
+
+
+def _check_pointer(name: str) -> str:
+    if name not in POINTERS:
+        raise ValueError(f"invalid pointer {name!r}: 'latest' or 'best'")
+    return name
+
+
+def run_prefix(run_id: str) -> str:
+    """``runs/{run_id}/``."""
+    return f"runs/{check_run_id(run_id)}/"
+
+
+def checkpoint_key(run_id: str, version: int) -> str:
+    """Key of a checkpoint's bytes: ``runs/{run_id}/checkpoints/{version:09d}.pt``."""
+    return f"{run_prefix(run_id)}checkpoints/{_check_version(version):09d}.pt"
+
+
+def checkpoint_meta_key(run_id: str, version: int) -> str:
+    """Key of a checkpoint's metadata: ``runs/{run_id}/checkpoints/{version:09d}.json``."""
+    return f"{run_prefix(run_id)}checkpoints/{_check_version(version):09d}.json"
+
+
+def pointer_key(run_id: str, name: str) -> str:
+    """Key of the ``latest`` or ``best`` pointer: ``runs/{run_id}/{name}.json``."""
+    return f"{run_prefix(run_id)}{_check_pointer(name)}.json"
+
+
+def _dumps(obj: dict[str, Any]) -> bytes:
+    # allow_nan=False: NaN/Infinity are not JSON, and other readers (jq, JS, DeepRacer tools) reject them.
+    return json.dumps(obj, indent=2, sort_keys=True, allow_nan=False).encode()
+
+
+def _loads(store: ObjectStore, key: str, data: bytes) -> dict[str, Any]:
+    """Parse a JSON object read from the store (json only: nothing from the store is unpickled)."""
+    try:
+        obj = json.loads(data)
+    except (ValueError, UnicodeDecodeError):
+        raise StoreError(f"malformed JSON in {store.key_uri(key)}") from None
+    if not isinstance(obj, dict):
+        raise StoreError(f"malformed JSON in {store.key_uri(key)}: not an object")
+    return obj
+
+
+class RunStore:
+    """Checkpoints, pointers and run files of training runs, on any ObjectStore."""
+
+    def __init__(self, store: ObjectStore) -> None:
+        self.store = store
+
+    # -- JSON helpers --------------------------------------------------------------------------------------------------
+
+    def _read_json(self, key: str) -> dict[str, Any]:
+        return _loads(self.store, key, self.store.get(key))
+
+    def _read_json_or_none(self, key: str) -> dict[str, Any] | None:
+        try:
+            return self._read_json(key)
+        except StoreKeyError:
+            return None
+
+    def _run_exists(self, run_id: str) -> bool:
+        return next(iter(self.store.list(run_prefix(run_id))), None) is not None
+
+    def _missing(self, run_id: str, what: str) -> StoreKeyError:
+        """A StoreKeyError that says whether the run itself or only ``what`` in it is missing."""
+        if not self._run_exists(run_id):
+            return StoreKeyError(f"run {run_id!r} does not exist in {self.store.uri}")
+        return StoreKeyError(f"run {run_id!r} has no {what} in {self.store.uri}")
+
+    # -- checkpoints ---------------------------------------------------------------------------------------------------
+
+    def save_checkpoint(self, run_id: str, version: int, payload: bytes, meta: dict[str, Any]) -> dict[str, Any]:
+        """Write the .pt, then its .json, then LAST the ``latest`` pointer; return the full metadata.
+
+        The metadata is ``meta`` plus ``run_id``, ``version``, ``size_bytes`` and ``created`` (epoch s, if absent).
+        A whole checkpoint (its .json exists) is never overwritten: StoreError. A half-written one (a .pt left by a
+        crash) is replaced.
+        """
+        full = {**meta, "run_id": check_run_id(run_id), "version": _check_version(version), "size_bytes": len(payload)}
+        full.setdefault("created", time.time())
+        meta_bytes = _dumps(full)  # serialize first: unserializable meta must fail before anything is written
+        meta_key = checkpoint_meta_key(run_id, version)
+        if self.store.exists(meta_key):
+            raise StoreError(f"checkpoint {version} of run {run_id!r} already exists: {self.store.key_uri(meta_key)}")
+        self.store.put(checkpoint_key(run_id, version), bytes(payload))
+        self.store.put(meta_key, meta_bytes)
+        self.store.put(pointer_key(run_id, "latest"), _dumps({**full, "version": version}))
+        return full
+
+    def checkpoint_meta(self, run_id: str, version: int) -> dict[str, Any]:
+        """The metadata of a whole checkpoint; StoreKeyError if the run, the .json or the .pt is missing."""
+        meta = self._read_json_or_none(checkpoint_meta_key(run_id, version))
+        if meta is None or not self.store.exists(checkpoint_key(run_id, version)):
+            raise self._missing(run_id, f"checkpoint {version}")
+        return meta
+
+    def set_pointer(self, run_id: str, name: PointerName, version: int) -> dict[str, Any]:
+        """Point ``latest`` or ``best`` at a whole checkpoint; return the pointer written."""
+        _check_pointer(name)
+        pointer = {**self.checkpoint_meta(run_id, version), "version": version}
+        self.store.put(pointer_key(run_id, name), _dumps(pointer))
+        return pointer
+
+    def pointer(self, run_id: str, name: PointerName) -> dict[str, Any] | None:
+        """The ``latest`` or ``best`` pointer of a run, or None if it has none."""
+        key = pointer_key(run_id, name)
+        pointer = self._read_json_or_none(key)
+        version = None if pointer is None else pointer.get("version")
+        if pointer is not None and (isinstance(version, bool) or not isinstance(version, int)):
+            raise StoreError(f"malformed pointer {self.store.key_uri(key)}: no integer 'version'")
+        return pointer
+
+    def resolve(self, run_id: str, version: int | str) -> int:
+        """A version number from an int, ``"latest"``, ``"best"`` or a decimal string (``--checkpoint 12``)."""
+        if isinstance(version, str) and version.isdecimal():
+            return _check_version(int(version))
+        if isinstance(version, str):
+            pointer = self.pointer(run_id, _check_pointer(version))  # type: ignore[arg-type]
+            if pointer is None:
+                raise self._missing(run_id, f"{version} checkpoint")
+            return pointer["version"]
+        return _check_version(version)
+
+    def load_checkpoint(self, run_id: str, version: int | str) -> tuple[bytes, dict[str, Any]]:
+        """The bytes and metadata of a checkpoint given as a version, ``"latest"`` or ``"best"``.
+
+        StoreKeyError if the run, the pointer or the checkpoint does not exist; StoreError if the bytes read do not
+        match the recorded size.
+        """
+        number = self.resolve(run_id, version)
+        meta = self.checkpoint_meta(run_id, number)
+        try:
+            payload = self.store.get(checkpoint_key(run_id, number))
+        except StoreKeyError:  # deleted since checkpoint_meta looked
+            raise self._missing(run_id, f"checkpoint {number}") from None
+        expected = meta.get("size_bytes")
+        if isinstance(expected, int) and expected != len(payload):
+            key_uri = self.store.key_uri(checkpoint_key(run_id, number))
+            raise StoreError(f"checkpoint {key_uri} is {len(payload)} bytes, its metadata says {expected}")
+        return payload, meta
+
+    def list_runs(self) -> list[str]:
+        """The run ids in the store, sorted."""
+        runs = {info.key.split("/")[1] for info in self.store.list("runs/") if info.key.count("/") >= 2}
+        return sorted(r for r in runs if _RUN_ID.match(r))
+
+    def list_checkpoints(self, run_id: str) -> list[dict[str, Any]]:
+        """Metadata of each whole checkpoint in version order, with ``size_bytes`` and ``latest``/``best`` flags.
+
+        A .pt without its .json (half-written) and a .json without its .pt are skipped.
+        """
+        prefix = f"{run_prefix(run_id)}checkpoints/"
+        sizes: dict[int, int] = {}
+        metas: set[int] = set()
+        for info in self.store.list(prefix):
+            m = _CKPT_NAME.match(info.key[len(prefix) :])
+            if m and m.group(2) == "pt":
+                sizes[int(m.group(1))] = info.size
+            elif m:
+                metas.add(int(m.group(1)))
+        flags = {name: (self.pointer(run_id, name) or {}).get("version") for name in POINTERS}
+        out = []
+        for version in sorted(metas & sizes.keys()):
+            meta = self._read_json(checkpoint_meta_key(run_id, version))
+            # The listed size is the truth on disk; the flags are computed, never stored.
+            meta.update(run_id=run_id, version=version, size_bytes=sizes[version])
+            meta.update({name: flags[name] == version for name in POINTERS})
+            out.append(meta)
+        return out
+
+    # -- run files -----------------------------------------------------------------------------------------------------
+
+    def _file_key(self, run_id: str, name: str) -> str:
+        if name in ("latest.json", "best.json") or name == "checkpoints" or name.startswith("checkpoints/"):
+            raise ValueError(f"run file name {name!r} is reserved for checkpoints and pointers")
+        key = f"{run_prefix(run_id)}{name}"
+        try:
+            return check_key(key)
+        except StoreError:
+            raise ValueError(f"invalid run file name {name!r}") from None
+
+    def write_file(self, run_id: str, name: str, data: bytes | str) -> None:
+        """Write a run file such as ``model_metadata.json`` or ``reward_function.py`` (str is written as UTF-8)."""
+        self.store.put(self._file_key(run_id, name), data.encode() if isinstance(data, str) else bytes(data))
+
+    def read_file(self, run_id: str, name: str) -> bytes:
+        """Read a run file; StoreKeyError naming the run and file if it is missing."""
+        try:
+            return self.store.get(self._file_key(run_id, name))
+        except StoreKeyError:
+            raise self._missing(run_id, f"file {name!r}") from None
+
+
+def list_models(store: ObjectStore, run_id: str | None = None) -> list[dict[str, Any]]:
+    """One dict per whole checkpoint across all runs (or one run), for ``racer models ls``.
+
+    Each has the checkpoint's metadata plus, always, ``run_id``, ``version``, ``env_steps`` (None if not recorded),
+    ``created``, ``size_bytes``, ``latest`` and ``best``. An unknown ``run_id`` gives an empty list.
+    """
+    runs = RunStore(store)
+    out = []
+    for rid in [check_run_id(run_id)] if run_id is not None else runs.list_runs():
+        for meta in runs.list_checkpoints(rid):
+            meta.setdefault("env_steps", None)
+            meta.setdefault("created", None)
+            out.append({**meta, "run_id": rid})
+    return out

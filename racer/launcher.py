@@ -1,0 +1,151 @@
+"""``racer train``: the whole loop on one machine — Redis, the trainer and N workers as processes."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+from rich.console import Console
+from rich.live import Live
+
+from common.config import RunConfig
+from common.keys import Keys
+from common.redis_util import connect
+from racer.embedded_redis import EmbeddedRedis
+
+
+@dataclass
+class TrainOptions:
+    """What ``racer train`` was asked to do (beyond the run's own config)."""
+
+    workers: int = 2
+    redis_url: str | None = None
+    """None = start an embedded Redis for this run."""
+    store: str = "."
+    s3_endpoint: str | None = None
+    time_limit_s: float | None = None
+    resume: bool = False
+    trainer_threads: int = 1
+
+
+def new_run_id() -> str:
+    """A readable, sortable run id: ``run-YYYYmmdd-HHMMSS``."""
+    return datetime.now(UTC).strftime("run-%Y%m%d-%H%M%S")
+
+
+def _role_env() -> dict[str, str]:
+    env = dict(os.environ)
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    return env
+
+
+def _spawn(args: list[str], log_path: Path) -> subprocess.Popen:
+    log = log_path.open("ab")
+    # start_new_session: Ctrl-C reaches only us; we stop the children in order, trainer last.
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "racer", *args],
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        env=_role_env(),
+        start_new_session=True,
+    )
+    log.close()
+    return proc
+
+
+def _stop_all(procs: list[subprocess.Popen], grace_s: float = 10.0) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + grace_s
+    for p in procs:
+        try:
+            p.wait(max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def _status_line(status: dict | None, procs_alive: int, workers: int) -> str:
+    if not status:
+        return f"starting… ({procs_alive} of {workers} workers running)"
+    return (
+        f"iter {status['iteration']}  v{status['policy_version']}  steps {status['env_steps']}  "
+        f"{status['steps_per_s']:.0f} steps/s  progress {status['mean_progress']:.1f}%  "
+        f"reward {status['mean_reward']:.1f}  workers {len(status['workers'])}/{workers}"
+    )
+
+
+def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], console: Console | None = None) -> dict:
+    """Start Redis (unless given), the trainer and the workers; show progress; stop them all at the end.
+
+    Returns the trainer's last status. Raises RuntimeError if the trainer process fails.
+    """
+    console = console or Console()
+    with contextlib.ExitStack() as stack:
+        redis_url = opts.redis_url or stack.enter_context(EmbeddedRedis()).url
+        work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="racer-train-")))
+        config_path = work / "run.json"
+        config_path.write_text(run.model_dump_json())
+        for name, data in run_files.items():
+            (work / name).write_bytes(data)
+        logs = Path(opts.store if "://" not in opts.store else ".") / "runs" / run.run_id / "logs"
+        logs.mkdir(parents=True, exist_ok=True)
+        common = ["--redis", redis_url, "--store", opts.store]
+        common += ["--s3-endpoint", opts.s3_endpoint] if opts.s3_endpoint else []
+        trainer_args = ["trainer", "--config", str(config_path), "--files", str(work), *common]
+        trainer_args += ["--resume"] if opts.resume else []
+        trainer_args += ["--threads", str(opts.trainer_threads)]
+        trainer = _spawn(trainer_args, logs / "trainer.log")
+        workers = [
+            _spawn(["worker", "--run-id", run.run_id, "--index", str(k), *common], logs / f"worker-{k}.log")
+            for k in range(opts.workers)
+        ]
+        try:
+            return _watch(run, opts, redis_url, trainer, workers, console, logs)
+        finally:
+            _stop_all([*workers, trainer])
+
+
+def _watch(
+    run: RunConfig,
+    opts: TrainOptions,
+    redis_url: str,
+    trainer: subprocess.Popen,
+    workers: list[subprocess.Popen],
+    console: Console,
+    logs: Path,
+) -> dict:
+    r, keys = connect(redis_url), Keys(run.run_id)
+    deadline = None if opts.time_limit_s is None else time.monotonic() + opts.time_limit_s
+    status: dict | None = None
+    reported_dead: set[int] = set()
+    with Live(console=console, refresh_per_second=4, transient=False) as live:
+        try:
+            while deadline is None or time.monotonic() < deadline:
+                if trainer.poll() is not None:
+                    if trainer.returncode == 0:
+                        break  # finished by its own termination condition
+                    tail = (logs / "trainer.log").read_text(errors="replace").strip().splitlines()[-1:]
+                    raise RuntimeError(f"the trainer exited with code {trainer.returncode}: {' '.join(tail)}")
+                for k, w in enumerate(workers):
+                    if w.poll() is not None and k not in reported_dead:
+                        reported_dead.add(k)
+                        console.print(f"[yellow]worker {k} exited with code {w.returncode}; see {logs}/worker-{k}.log")
+                raw = r.get(keys.trainer_status)
+                status = json.loads(raw) if raw else status
+                alive = sum(w.poll() is None for w in workers)
+                live.update(_status_line(status, alive, len(workers)))
+                time.sleep(0.25)
+        except KeyboardInterrupt:
+            console.print("stopping (Ctrl-C)…")
+    return status or {}

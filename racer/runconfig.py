@@ -1,0 +1,55 @@
+"""Turn ``racer train`` / ``racer trainer`` options into a RunConfig and the run's files."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+from common.action_space import default_action_space, load_action_space
+from common.config import EnvConfig, RandomizationConfig, RunConfig
+from common.hyperparams import Hyperparameters, load_hyperparameters
+from common.policy import PolicyConfig, network_from_metadata
+from sim.reward import check_reward_function, example_path, load_reward_function
+from sim.track import load_track
+
+_DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([smh]?)\s*$")
+
+
+def parse_duration(text: str) -> float:
+    """Seconds in ``90s``, ``5m``, ``1.5h`` or a bare number of seconds; ValueError naming the text otherwise."""
+    m = _DURATION.match(text)
+    if not m:
+        raise ValueError(f"duration {text!r} is not valid: use a number with s, m or h (90s, 5m, 2h)")
+    return float(m.group(1)) * {"": 1, "s": 1, "m": 60, "h": 3600}[m.group(2)]
+
+
+def build_run(
+    run_id: str,
+    track: str = "reinvent_base",
+    reward_fn: str | None = None,
+    action_space: str | None = None,
+    hyperparams: str | None = None,
+    randomization: str | None = None,
+    worker_tracks: list[str] | None = None,
+    seed: int = 0,
+) -> tuple[RunConfig, dict[str, bytes]]:
+    """Validate the user's files now (before any process starts) and build the run's config and files."""
+    load_track(track)
+    for t in worker_tracks or []:
+        load_track(t)
+    reward_path = Path(reward_fn) if reward_fn else example_path("default")
+    # A broken reward function fails here, naming the user's file, before any process starts.
+    check_reward_function(load_reward_function(reward_path))
+    actions = load_action_space(action_space) if action_space else default_action_space()
+    hp = load_hyperparameters(hyperparams) if hyperparams else Hyperparameters()
+    dr = RandomizationConfig.model_validate(json.loads(Path(randomization).read_text())) if randomization else None
+    env = EnvConfig(track=track, randomization=dr or RandomizationConfig())
+    policy = PolicyConfig(network=network_from_metadata(actions.neural_network), stack_size=hp.stack_size)
+    run = RunConfig(run_id=run_id, env=env, hyperparams=hp, policy=policy, worker_tracks=worker_tracks or [], seed=seed)
+    files = {
+        "reward_function.py": reward_path.read_bytes(),
+        "model_metadata.json": actions.to_json().encode(),
+        "hyperparameters.json": hp.to_json().encode(),
+    }
+    return run, files

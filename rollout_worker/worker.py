@@ -1,0 +1,295 @@
+"""The rollout worker: poll the policy, run episodes, push segments to Redis, keep a heartbeat.
+
+One worker runs one env with its own seed (so its own randomization) and possibly its own track.
+It reads everything about the run from the store (``config.json``, the reward function, the action
+space) so a worker on another machine needs only the run id, the Redis URL and the store URI.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import resource
+import socket
+import tempfile
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from common.config import EnvConfig, RunConfig
+from common.keys import Keys
+from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
+from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
+from common.redis_util import connect
+from model_store import RunStore, open_store
+from model_store.localize import localize_env
+from sim.env import RacerEnv
+
+log = logging.getLogger("racer.worker")
+
+
+@dataclass
+class WorkerOptions:
+    """How to reach the run, and who this worker is."""
+
+    run_id: str
+    redis_url: str
+    store: str = "."
+    s3_endpoint: str | None = None
+    worker_index: int = 0
+    """Index k: seeds the env with run seed + 1000·k and picks worker_tracks[k % len]."""
+    worker_id: str = ""
+    """Name in heartbeats and segments; default ``{host}-{pid}-{index}``."""
+    policy_wait_s: float = 300.0
+    """How long to wait for the trainer's first policy before giving up, seconds."""
+
+
+@dataclass
+class _Rollout:
+    """Arrays being filled for the current segment."""
+
+    obs: list = field(default_factory=list)
+    actions: list = field(default_factory=list)
+    rewards: list = field(default_factory=list)
+    terminated: list = field(default_factory=list)
+    truncated: list = field(default_factory=list)
+    logp: list = field(default_factory=list)
+    values: list = field(default_factory=list)
+    next_values: list = field(default_factory=list)
+    episode_id: list = field(default_factory=list)
+    episodes: list = field(default_factory=list)
+
+
+class FrameStack:
+    """The last ``n`` camera frames as channels, as DeepRacer's ``stack_size`` does."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.frames: deque = deque(maxlen=n)
+
+    def reset(self, frame: np.ndarray) -> np.ndarray:
+        """Fill the stack with the first frame of an episode."""
+        for _ in range(self.n):
+            self.frames.append(frame)
+        return self.get()
+
+    def push(self, frame: np.ndarray) -> np.ndarray:
+        """Add a frame and return the stacked observation."""
+        self.frames.append(frame)
+        return self.get()
+
+    def get(self) -> np.ndarray:
+        """(H, W, n) uint8, oldest frame first."""
+        return np.concatenate(list(self.frames), axis=-1) if self.n > 1 else self.frames[-1]
+
+
+class RolloutWorker:
+    """One worker process's state: env, policy, Redis and store handles."""
+
+    def __init__(self, opts: WorkerOptions, stop: threading.Event | None = None) -> None:
+        self.opts = opts
+        self.stop = stop or threading.Event()
+        self.keys = Keys(opts.run_id)
+        self.redis = connect(opts.redis_url)
+        self.runs = RunStore(open_store(opts.store, opts.s3_endpoint))
+        self.worker_id = opts.worker_id or f"{socket.gethostname()}-{os.getpid()}-{opts.worker_index}"
+        self.policy_version = -1
+        self.env_steps = 0
+        self.segments = 0
+        self._episode = 0
+        self._workdir = tempfile.TemporaryDirectory(prefix="racer-worker-")
+
+    # --- set-up -------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Wait for the first policy, then build the env and the network from the run's files."""
+        first = self._wait_for_policy()
+        self.run = RunConfig.model_validate_json(self.runs.read_file(self.opts.run_id, "config.json"))
+        self.env = RacerEnv(config=self._env_config())
+        self.stack = FrameStack(self.run.hyperparams.stack_size)
+        obs_shape = (*self.env.observation_space.shape[:2], self.run.hyperparams.stack_size)
+        self.model: ActorCritic = build_policy(obs_shape, action_space_spec(self.env.actions), self.run.policy)
+        self.model.eval()
+        self._load(first)
+        self.seed = self.run.seed + 1000 * self.opts.worker_index
+        self.obs = self.stack.reset(self.env.reset(seed=self.seed)[0])
+        self._ep_reward = 0.0
+
+    def _env_config(self) -> EnvConfig:
+        """The run's env (reward function and action space from the store), on this worker's track."""
+        tracks = self.run.worker_tracks
+        track = tracks[self.opts.worker_index % len(tracks)] if tracks else None
+        return localize_env(self.run, self.runs, Path(self._workdir.name), track)
+
+    def _wait_for_policy(self) -> PolicyVersion:
+        deadline = time.monotonic() + self.opts.policy_wait_s
+        while not self.stop.is_set():
+            raw = self.redis.get(self.keys.policy)
+            if raw is not None:
+                return PolicyVersion.from_json(raw)
+            if time.monotonic() > deadline:
+                raise TimeoutError(
+                    f"no policy published for run {self.opts.run_id!r} after {self.opts.policy_wait_s} s"
+                )
+            self.stop.wait(0.2)
+        raise InterruptedError("stopped while waiting for the first policy")
+
+    def _load(self, pv: PolicyVersion) -> None:
+        payload, _ = self.runs.load_checkpoint(self.opts.run_id, pv.version)
+        model_sd, _ = checkpoint_from_bytes(payload)
+        self.model.load_state_dict(model_sd)
+        self.policy_version = pv.version
+        self.policy_loaded_at = time.time()
+        log.info("worker %s acting with policy version %d", self.worker_id, pv.version)
+
+    # --- the loop -----------------------------------------------------------------------------
+    def run_forever(self) -> None:
+        """Collect and push segments until stopped."""
+        while not self.stop.is_set():
+            seg = self.collect()
+            self.push(seg)
+            if not self.poll_policy():
+                self.wait_while_training()
+
+    def wait_while_training(self, timeout_s: float = 300.0) -> None:
+        """With ``max_policy_lag`` 0, segments collected during a PPO update would be dropped as stale: wait
+        for the new policy instead, leaving the CPU to the trainer (DeepRacer's workers wait the same way)."""
+        if self.run.max_policy_lag > 0:
+            return
+        deadline = time.monotonic() + timeout_s
+        while not self.stop.is_set() and time.monotonic() < deadline and self.redis.exists(self.keys.training):
+            if self.poll_policy():
+                return
+            self.stop.wait(0.05)
+        self.poll_policy()
+
+    def collect(self) -> Segment:
+        """Run ``segment_steps`` env steps with the current policy."""
+        ro = _Rollout()
+        for _ in range(self.run.segment_steps):
+            action, logp, value = self.model.act_numpy(self.obs[None])
+            ro.obs.append(self.obs)
+            ro.actions.append(action[0])
+            ro.logp.append(logp[0])
+            ro.values.append(value[0])
+            ro.episode_id.append(self._episode)
+            frame, reward, term, trunc, info = self.env.step(action[0])
+            self._ep_reward += reward
+            ro.rewards.append(reward)
+            ro.terminated.append(term)
+            ro.truncated.append(trunc)
+            if term or trunc:
+                final = self.stack.push(frame)
+                ro.next_values.append(self._value(final) if trunc else 0.0)
+                ro.episodes.append(self._summary(info))
+                self._new_episode()
+            else:
+                self.obs = self.stack.push(frame)
+                ro.next_values.append(None)  # V(o_{t+1}) is the next step's value
+        self.env_steps += self.run.segment_steps
+        return self._segment(ro)
+
+    def _segment(self, ro: _Rollout) -> Segment:
+        values = np.asarray(ro.values, np.float32)
+        nxt = [
+            v if v is not None else (values[t + 1] if t + 1 < len(values) else None)
+            for t, v in enumerate(ro.next_values)
+        ]
+        if nxt[-1] is None:
+            nxt[-1] = self._value(self.obs)
+        actions = np.asarray(ro.actions)
+        arrays = {
+            "obs": np.stack(ro.obs),
+            "next_obs": self.obs[None],
+            "actions": actions.astype(np.int64 if self.env.actions.discrete else np.float32),
+            "rewards": np.asarray(ro.rewards, np.float32),
+            "terminated": np.asarray(ro.terminated, np.uint8),
+            "truncated": np.asarray(ro.truncated, np.uint8),
+            "logp": np.asarray(ro.logp, np.float32),
+            "values": values,
+            "next_values": np.asarray(nxt, np.float32),
+            "episode_id": np.asarray(ro.episode_id, np.int64),
+        }
+        return Segment(self.opts.run_id, self.worker_id, self.policy_version, self.seed, arrays, ro.episodes)
+
+    def _value(self, obs: np.ndarray) -> float:
+        return float(self.model.act_numpy(obs[None])[2][0])
+
+    def _summary(self, info: dict) -> EpisodeSummary:
+        p = info["params"]
+        status = info["episode_status"]
+        lap = p["sim_time"] if status == "lap_complete" else None
+        return EpisodeSummary(
+            self._episode, p["steps"], p["progress"], self._ep_reward, status, self.env.track.name, lap
+        )
+
+    def _new_episode(self) -> None:
+        self._episode += 1
+        self._ep_reward = 0.0
+        self.obs = self.stack.reset(self.env.reset()[0])
+
+    def push(self, seg: Segment) -> None:
+        """Send a segment (one atomic XADD, capped stream) and refresh the heartbeat."""
+        self.segments += 1
+        pipe = self.redis.pipeline(transaction=False)
+        pipe.xadd(self.keys.segments, encode_segment(seg), maxlen=self.run.stream_maxlen, approximate=True)
+        pipe.set(self.keys.heartbeat(self.worker_id), self._heartbeat().to_json(), ex=int(self.run.heartbeat_ttl_s) + 1)
+        pipe.execute()
+
+    def _heartbeat(self) -> Heartbeat:
+        return Heartbeat(
+            self.worker_id,
+            os.getpid(),
+            socket.gethostname(),
+            self.policy_version,
+            self.env_steps,
+            self.segments,
+            time.time(),
+            self.env.track.name,
+            self.policy_loaded_at,
+            peak_rss_mb(),
+        )
+
+    def poll_policy(self) -> bool:
+        """Switch to a newer policy if one was published. Called between segments (every ~50 ms of work):
+        one GET of the version key is cheaper than keeping a pub/sub connection and just as prompt."""
+        raw = self.redis.get(self.keys.policy)
+        if raw is None:
+            return False
+        try:
+            pv = PolicyVersion.from_json(raw)
+        except ProtocolError as exc:
+            log.warning("ignoring malformed policy version: %s", exc)
+            return False
+        if pv.version <= self.policy_version:
+            return False
+        self._load(pv)
+        return True
+
+    def close(self) -> None:
+        """Release the env, the Redis connections and the temporary files."""
+        if hasattr(self, "env"):
+            self.env.close()
+        self._workdir.cleanup()
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process, MB (Linux reports ru_maxrss in kB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def run_worker(opts: WorkerOptions, stop: threading.Event | None = None) -> None:
+    """The ``racer worker`` process: set up, then collect and push until stopped."""
+    torch.set_num_threads(1)  # workers are many single-core processes
+    worker = RolloutWorker(opts, stop)
+    try:
+        worker.start()
+        worker.run_forever()
+    except InterruptedError:
+        pass
+    finally:
+        worker.close()

@@ -1,0 +1,53 @@
+"""Shared fixtures: real servers started by the tests (never the machine's own Redis on 6379)."""
+
+import uuid
+
+import boto3
+import pytest
+import redis
+from moto.server import ThreadedMotoServer
+
+from racer.embedded_redis import EmbeddedRedis, free_port
+
+S3_BUCKET = "racer-it"
+
+
+@pytest.fixture(scope="session")
+def redis_server():
+    """A redis-server started for this test session on a free port; stopped at the end."""
+    server = EmbeddedRedis(port=free_port())
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def redis_url(redis_server):
+    """URL of the session's Redis, emptied before each test (it is our own server, so flushing is safe)."""
+    redis.Redis.from_url(redis_server.url).flushall()
+    return redis_server.url
+
+
+@pytest.fixture
+def run_id():
+    """A fresh run id per test."""
+    return f"t-{uuid.uuid4().hex[:10]}"
+
+
+@pytest.fixture(scope="session")
+def s3_server():
+    """moto's S3 server over HTTP on a free port with one bucket, and fake credentials in the environment."""
+    with pytest.MonkeyPatch.context() as mp:
+        for name in ("AWS_ENDPOINT_URL", "AWS_ENDPOINT_URL_S3", "AWS_PROFILE", "AWS_SESSION_TOKEN"):
+            mp.delenv(name, raising=False)
+        mp.setenv("AWS_SHARED_CREDENTIALS_FILE", "/nonexistent/credentials")
+        mp.setenv("AWS_CONFIG_FILE", "/nonexistent/config")
+        mp.setenv("AWS_ACCESS_KEY_ID", "testing")
+        mp.setenv("AWS_SECRET_ACCESS_KEY", "testing-secret")
+        mp.setenv("AWS_DEFAULT_REGION", "us-east-1")
+        server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+        server.start()
+        host, port = server.get_host_and_port()
+        endpoint = f"http://{host}:{port}"
+        boto3.client("s3", endpoint_url=endpoint).create_bucket(Bucket=S3_BUCKET)
+        yield endpoint
+        server.stop()

@@ -1,0 +1,156 @@
+"""Tests of DeepRacer's hyperparameters.json (common.hyperparams)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from pydantic import ValidationError
+
+from common.hyperparams import (
+    DEEPRACER_KEYS,
+    Hyperparameters,
+    HyperparametersError,
+    load_hyperparameters,
+)
+
+# A hyperparameters.json as the DeepRacer console writes it.
+DEEPRACER_FILE = {
+    "batch_size": 64,
+    "beta_entropy": 0.01,
+    "discount_factor": 0.95,
+    "e_greedy_value": 1.0,
+    "epsilon_steps": 10000,
+    "exploration_type": "categorical",
+    "loss_type": "huber",
+    "lr": 0.0003,
+    "num_episodes_between_training": 20,
+    "num_epochs": 3,
+    "stack_size": 1,
+    "term_cond_avg_score": 100000.0,
+    "term_cond_max_episodes": 100000,
+}
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "hyperparameters.json"
+    path.write_text(text)
+    return path
+
+
+def test_deepracer_file_loads(tmp_path: Path) -> None:
+    hp = load_hyperparameters(_write(tmp_path, json.dumps(DEEPRACER_FILE)))
+    assert hp.model_dump(include=set(DEEPRACER_KEYS)) == DEEPRACER_FILE
+    assert hp.value_loss_kind == "huber"
+    # racer's PPO knobs take their defaults when DeepRacer's file does not name them
+    assert (hp.clip_epsilon, hp.gae_lambda, hp.value_loss_coef, hp.max_grad_norm) == (0.2, 0.95, 0.5, 0.5)
+
+
+def test_defaults() -> None:
+    hp = Hyperparameters()
+    assert hp.batch_size == 64 and hp.beta_entropy == 0.01 and hp.discount_factor == 0.999
+    assert hp.e_greedy_value == 1.0 and hp.epsilon_steps == 10000 and hp.exploration_type == "categorical"
+    assert hp.loss_type == "huber" and hp.lr == 0.0003 and hp.num_episodes_between_training == 20
+    assert hp.num_epochs == 10 and hp.stack_size == 1
+    assert hp.term_cond_avg_score == 350.0 and hp.term_cond_max_episodes == 1000
+
+
+def test_empty_object_is_all_defaults(tmp_path: Path) -> None:
+    assert load_hyperparameters(_write(tmp_path, "{}")) == Hyperparameters()
+
+
+@pytest.mark.parametrize("spelling", ["mean squared error", "mse"])
+def test_mse_spellings(tmp_path: Path, spelling: str) -> None:
+    hp = load_hyperparameters(_write(tmp_path, json.dumps({"loss_type": spelling})))
+    assert hp.loss_type == "mean squared error"  # stored as DeepRacer writes it
+    assert hp.value_loss_kind == "mse"
+
+
+def test_racer_knobs_allowed(tmp_path: Path) -> None:
+    text = json.dumps(DEEPRACER_FILE | {"clip_epsilon": 0.1, "gae_lambda": 0.9, "value_loss_coef": 1.0})
+    hp = load_hyperparameters(_write(tmp_path, text))
+    assert (hp.clip_epsilon, hp.gae_lambda, hp.value_loss_coef) == (0.1, 0.9, 1.0)
+
+
+def test_to_json_is_deepracer_format(tmp_path: Path) -> None:
+    hp = Hyperparameters.model_validate(DEEPRACER_FILE)
+    data = json.loads(hp.to_json())
+    assert list(data) == list(DEEPRACER_KEYS)  # every DeepRacer key, no racer key at its default
+    assert data == DEEPRACER_FILE
+    assert load_hyperparameters(_write(tmp_path, hp.to_json())) == hp
+
+
+def test_to_json_keeps_non_default_racer_knobs(tmp_path: Path) -> None:
+    hp = Hyperparameters(loss_type="mse", gae_lambda=0.9)
+    data = json.loads(hp.to_json())
+    assert data["loss_type"] == "mean squared error" and data["gae_lambda"] == 0.9
+    assert "clip_epsilon" not in data
+    assert load_hyperparameters(_write(tmp_path, hp.to_json())) == hp
+
+
+def _error(tmp_path: Path, text: str) -> str:
+    path = _write(tmp_path, text)
+    with pytest.raises(HyperparametersError) as info:
+        load_hyperparameters(path)
+    message = str(info.value)
+    assert "\n" not in message and str(path) in message
+    return message
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(HyperparametersError, match="does not exist"):
+        load_hyperparameters(tmp_path / "nope.json")
+
+
+def test_bad_json(tmp_path: Path) -> None:
+    assert "not valid JSON" in _error(tmp_path, '{"lr": 0.001,')
+
+
+def test_not_an_object(tmp_path: Path) -> None:
+    assert "expected a JSON object" in _error(tmp_path, "[1, 2]")
+
+
+def test_unknown_key_is_a_typo(tmp_path: Path) -> None:
+    message = _error(tmp_path, json.dumps(DEEPRACER_FILE | {"learning_rate": 0.001}))
+    assert "unknown key 'learning_rate'" in message
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [
+        ("lr", 0),
+        ("lr", -0.001),
+        ("lr", "fast"),
+        ("discount_factor", 0.0),
+        ("discount_factor", 1.5),
+        ("batch_size", 0),
+        ("batch_size", 64.5),
+        ("batch_size", True),
+        ("num_epochs", 0),
+        ("stack_size", 0),
+        ("stack_size", 9),
+        ("beta_entropy", -0.1),
+        ("e_greedy_value", 2.0),
+        ("num_episodes_between_training", 0),
+        ("term_cond_max_episodes", 0),
+        ("loss_type", "l1"),
+        ("exploration_type", "e-greedy"),
+        ("clip_epsilon", 0.0),
+        ("gae_lambda", 1.1),
+        ("max_grad_norm", 0),
+    ],
+)
+def test_bad_value_names_key_and_value(tmp_path: Path, key: str, value: object) -> None:
+    message = _error(tmp_path, json.dumps(DEEPRACER_FILE | {key: value}))
+    assert f"{key} = {json.dumps(value)}" in message
+
+
+def test_nan_rejected(tmp_path: Path) -> None:
+    assert "term_cond_avg_score = NaN" in _error(tmp_path, '{"term_cond_avg_score": NaN}')
+
+
+def test_assignment_is_validated() -> None:
+    hp = Hyperparameters()
+    with pytest.raises(ValidationError):
+        hp.lr = -1.0

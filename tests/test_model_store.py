@@ -1,0 +1,352 @@
+"""model_store: the object-store interface on a directory and on S3 (moto's server, over real HTTP), and the run
+layout on top of it."""
+
+import json
+import socket
+import time
+import uuid
+from concurrent.futures import ThreadPoolExecutor
+
+import boto3
+import pytest
+from botocore.config import Config
+from moto.server import ThreadedMotoServer
+
+from model_store import (
+    LocalStore,
+    RunStore,
+    S3Store,
+    StoreError,
+    StoreKeyError,
+    list_models,
+    open_store,
+)
+
+BUCKET = "racer-models"
+SECRET = "testing"  # the fake AWS_SECRET_ACCESS_KEY; it must never show up in an error message
+
+
+@pytest.fixture(scope="module")
+def s3_endpoint():
+    """A moto S3 server on a free local port with one bucket; fake credentials in the environment."""
+    with pytest.MonkeyPatch.context() as mp:
+        # Keep the developer's own AWS setup (profiles, endpoints, tokens) out of the tests.
+        for name in ("AWS_ENDPOINT_URL", "AWS_ENDPOINT_URL_S3", "AWS_PROFILE", "AWS_SESSION_TOKEN"):
+            mp.delenv(name, raising=False)
+        mp.setenv("AWS_SHARED_CREDENTIALS_FILE", "/nonexistent/credentials")
+        mp.setenv("AWS_CONFIG_FILE", "/nonexistent/config")
+        mp.setenv("AWS_ACCESS_KEY_ID", "testing")
+        mp.setenv("AWS_SECRET_ACCESS_KEY", SECRET)
+        mp.setenv("AWS_DEFAULT_REGION", "us-east-1")
+        server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+        server.start()
+        try:
+            host, port = server.get_host_and_port()
+            endpoint = f"http://{host}:{port}"
+            boto3.client("s3", endpoint_url=endpoint).create_bucket(Bucket=BUCKET)
+            yield endpoint
+        finally:
+            server.stop()
+
+
+@pytest.fixture(params=["local", "s3"])
+def store(request, tmp_path):
+    """Each behavioural test runs on a LocalStore in tmp_path and on an S3Store under a fresh prefix."""
+    if request.param == "local":
+        return LocalStore(tmp_path / "store")
+    endpoint = request.getfixturevalue("s3_endpoint")
+    return S3Store(BUCKET, f"t-{uuid.uuid4().hex}", endpoint)
+
+
+def _free_port() -> int:
+    # Bind to port 0 to get a free port, then close it: nothing listens there afterwards.
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+# -- ObjectStore -------------------------------------------------------------------------------------------------------
+
+
+def test_put_get_exists_delete_round_trip(store):
+    assert not store.exists("a/b.bin")
+    store.put("a/b.bin", b"\x00\x01hello")
+    assert store.exists("a/b.bin")
+    assert store.get("a/b.bin") == b"\x00\x01hello"
+    store.put("a/b.bin", b"replaced")
+    assert store.get("a/b.bin") == b"replaced"
+    store.delete("a/b.bin")
+    assert not store.exists("a/b.bin")
+    store.delete("a/b.bin")  # deleting a missing key is a no-op on both backends
+
+
+def test_get_of_a_missing_key_is_a_store_key_error_naming_it(store):
+    with pytest.raises(StoreKeyError) as info:
+        store.get("nope/missing.json")
+    assert isinstance(info.value, KeyError) and isinstance(info.value, StoreError)
+    assert "nope/missing.json" in str(info.value)
+    assert not str(info.value).startswith("'")  # plain message, not KeyError's quoted repr
+
+
+def test_list_with_a_prefix_gives_sorted_keys_and_sizes(store):
+    for key, data in [("runs/b/x", b"123"), ("runs/a/y", b"1"), ("runs/a.txt", b"12"), ("other/z", b"")]:
+        store.put(key, data)
+    infos = list(store.list("runs/"))
+    assert [(i.key, i.size) for i in infos] == [("runs/a.txt", 2), ("runs/a/y", 1), ("runs/b/x", 3)]
+    assert all(abs(i.modified - time.time()) < 600 for i in infos)
+    assert [i.key for i in store.list("runs/a")] == ["runs/a.txt", "runs/a/y"]  # a string prefix, as in S3
+    assert [i.key for i in store.list()] == ["other/z", "runs/a.txt", "runs/a/y", "runs/b/x"]
+    assert list(store.list("nothing/")) == []
+
+
+def test_keys_that_escape_the_store_are_rejected(store, tmp_path):
+    for bad in ["../x", "a/../../x", "/etc/passwd", "", "a//b"]:
+        with pytest.raises(StoreError):
+            store.put(bad, b"x")
+    assert not (tmp_path / "x").exists()
+
+
+def test_local_store_creates_its_root_on_first_write_and_leaves_no_temp_files(tmp_path):
+    store = LocalStore(tmp_path / "deep" / "root")
+    assert list(store.list()) == []
+    store.put("k/v", b"data")
+    assert [p.name for p in (tmp_path / "deep" / "root" / "k").iterdir()] == ["v"]
+
+
+def test_s3_list_pages_past_1000_keys(s3_endpoint):
+    store = S3Store(BUCKET, f"page-{uuid.uuid4().hex}", s3_endpoint)
+    keys = [f"many/{i:05d}" for i in range(1005)]
+    with ThreadPoolExecutor(max_workers=16) as pool:
+        list(pool.map(lambda k: store.put(k, b"x"), keys))
+    calls = []
+    store.client.meta.events.register("after-call.s3.ListObjectsV2", lambda **kw: calls.append(1))
+    listed = store.list("many/")
+    assert not calls  # lazy: nothing requested until iterated
+    assert [i.key for i in listed] == keys
+    assert len(calls) == 2  # S3 pages at 1000 keys
+
+
+# -- open_store --------------------------------------------------------------------------------------------------------
+
+
+def test_open_store_s3_uri_gives_bucket_and_prefix(s3_endpoint):
+    store = open_store("s3://my-bucket/pre/fix/", endpoint=s3_endpoint)
+    assert isinstance(store, S3Store)
+    assert (store.bucket, store.prefix, store.uri) == ("my-bucket", "pre/fix", "s3://my-bucket/pre/fix")
+    assert open_store("s3://just-bucket").prefix == ""
+
+
+def test_open_store_takes_the_endpoint_from_aws_endpoint_url(s3_endpoint, monkeypatch):
+    monkeypatch.setenv("AWS_ENDPOINT_URL", s3_endpoint)
+    store = open_store(f"s3://{BUCKET}/env-{uuid.uuid4().hex}")
+    store.put("k", b"v")
+    assert store.get("k") == b"v"
+
+
+def test_open_store_path_gives_local_store(tmp_path):
+    store = open_store(str(tmp_path / "runs"))
+    assert isinstance(store, LocalStore) and store.root == tmp_path / "runs"
+    assert isinstance(open_store(f"file://{tmp_path}"), LocalStore)
+
+
+@pytest.mark.parametrize("uri", ["s3://", "s3:///prefix", "gs://bucket/x", "", "s3://bad bucket/x"])
+def test_open_store_rejects_bad_uris_naming_them(uri):
+    with pytest.raises(StoreError) as info:
+        open_store(uri)
+    assert repr(uri) in str(info.value) or uri == ""
+
+
+# -- S3 errors ---------------------------------------------------------------------------------------------------------
+
+
+def test_nonexistent_bucket_is_a_store_error_naming_it(s3_endpoint):
+    store = S3Store("no-such-bucket-42", "p", s3_endpoint)
+    for call in (lambda: store.get("k"), lambda: store.put("k", b"v"), lambda: list(store.list("x/"))):
+        with pytest.raises(StoreError) as info:
+            call()
+        assert not isinstance(info.value, StoreKeyError)
+        assert "bucket 'no-such-bucket-42' does not exist" in str(info.value)
+        assert SECRET not in str(info.value)
+
+
+def test_unreachable_endpoint_fails_fast_with_cannot_reach(s3_endpoint):
+    endpoint = f"http://user:hunter2@127.0.0.1:{_free_port()}"
+    store = S3Store(BUCKET, "", endpoint)  # the default config: 5 attempts, but a refused connect is instant
+    start = time.monotonic()
+    for call in (lambda: store.get("k"), lambda: list(store.list()), lambda: store.exists("k")):
+        with pytest.raises(StoreError, match="cannot reach S3 endpoint http://127.0.0.1:") as info:
+            call()
+        message = str(info.value)
+        assert "\n" not in message and SECRET not in message and "hunter2" not in message
+    assert time.monotonic() - start < 20
+
+
+def test_s3_client_config_defaults_and_overrides(s3_endpoint):
+    cfg = S3Store(BUCKET, "", s3_endpoint).client.meta.config
+    # botocore reads max_attempts=5 as five retries after the first try: six attempts in all.
+    assert cfg.retries == {"mode": "standard", "total_max_attempts": 6}
+    assert (cfg.connect_timeout, cfg.read_timeout) == (5, 30)
+    cfg = S3Store(BUCKET, "", s3_endpoint, config=Config(read_timeout=7)).client.meta.config
+    assert (cfg.retries["total_max_attempts"], cfg.read_timeout) == (6, 7)
+
+
+def test_missing_credentials_say_how_to_set_them(s3_endpoint, monkeypatch):
+    for name in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_CONTAINER_CREDENTIALS_FULL_URI"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.delenv("AWS_CONTAINER_CREDENTIALS_RELATIVE_URI", raising=False)
+    monkeypatch.setenv("AWS_EC2_METADATA_DISABLED", "true")  # no instance-role lookup
+    store = S3Store(BUCKET, "", s3_endpoint)
+    with pytest.raises(StoreError, match="no S3 credentials found"):
+        store.get("k")
+
+
+def test_error_messages_never_contain_the_secret(s3_endpoint):
+    store = S3Store(BUCKET, "secret-check", s3_endpoint)
+    messages = []
+    for call in (lambda: store.get("missing"), lambda: RunStore(store).load_checkpoint("run1", "latest")):
+        with pytest.raises(StoreError) as info:
+            call()
+        messages.append(str(info.value))
+    assert messages and all(SECRET not in m and "\n" not in m for m in messages)
+
+
+# -- RunStore ----------------------------------------------------------------------------------------------------------
+
+
+def _save(runs: RunStore, run_id: str, versions) -> None:
+    for v in versions:
+        runs.save_checkpoint(run_id, v, f"weights-{v}".encode(), {"env_steps": 1000 * v, "reward": 0.5 * v})
+
+
+def test_three_checkpoints_list_in_order_with_latest_on_the_last(store):
+    runs = RunStore(store)
+    _save(runs, "run1", [1, 2, 3])
+    ckpts = runs.list_checkpoints("run1")
+    assert [c["version"] for c in ckpts] == [1, 2, 3]
+    assert [c["latest"] for c in ckpts] == [False, False, True]
+    assert [c["best"] for c in ckpts] == [False, False, False]
+    assert ckpts[1]["size_bytes"] == len(b"weights-2") and ckpts[1]["env_steps"] == 2000
+    assert ckpts[0]["run_id"] == "run1" and isinstance(ckpts[0]["created"], float)
+
+
+def test_save_returns_full_metadata_and_load_latest_returns_bytes_and_meta(store):
+    runs = RunStore(store)
+    _save(runs, "run1", [1, 2])
+    meta = runs.save_checkpoint("run1", 3, b"weights-3", {"env_steps": 3000, "created": 123.0})
+    assert meta == {"env_steps": 3000, "created": 123.0, "run_id": "run1", "version": 3, "size_bytes": 9}
+    payload, loaded = runs.load_checkpoint("run1", "latest")
+    assert payload == b"weights-3" and loaded == meta
+    assert runs.pointer("run1", "latest") == meta
+    assert runs.load_checkpoint("run1", 2)[0] == b"weights-2"
+    assert runs.load_checkpoint("run1", "1")[0] == b"weights-1"  # a CLI's --checkpoint 1
+    stored = json.loads(store.get("runs/run1/checkpoints/000000003.json"))
+    assert stored == meta
+
+
+def test_set_pointer_best_sets_the_flag(store):
+    runs = RunStore(store)
+    _save(runs, "run1", [1, 2, 3])
+    assert runs.pointer("run1", "best") is None
+    runs.set_pointer("run1", "best", 2)
+    assert [c["best"] for c in runs.list_checkpoints("run1")] == [False, True, False]
+    assert runs.load_checkpoint("run1", "best")[0] == b"weights-2"
+    with pytest.raises(ValueError):
+        runs.set_pointer("run1", "worst", 2)
+
+
+def test_half_written_checkpoints_are_not_listed_and_latest_stays_on_the_last_whole_one(store):
+    runs = RunStore(store)
+    _save(runs, "run1", [1, 2, 3])
+    store.put("runs/run1/checkpoints/000000004.pt", b"crashed before its json")
+    store.put("runs/run1/checkpoints/000000005.json", json.dumps({"version": 5}).encode())
+    assert [c["version"] for c in runs.list_checkpoints("run1")] == [1, 2, 3]
+    assert runs.pointer("run1", "latest")["version"] == 3
+    assert runs.load_checkpoint("run1", "latest")[0] == b"weights-3"
+    for version in (4, 5):
+        with pytest.raises(StoreKeyError, match=f"checkpoint {version}"):
+            runs.set_pointer("run1", "best", version)
+        with pytest.raises(StoreKeyError):
+            runs.load_checkpoint("run1", version)
+    runs.save_checkpoint("run1", 4, b"weights-4", {})  # a retry replaces the half-written .pt
+    assert runs.load_checkpoint("run1", "latest") == (b"weights-4", runs.pointer("run1", "latest"))
+
+
+def test_a_whole_checkpoint_is_never_overwritten(store):
+    runs = RunStore(store)
+    _save(runs, "run1", [1])
+    with pytest.raises(StoreError, match="already exists"):
+        runs.save_checkpoint("run1", 1, b"other", {})
+    assert runs.load_checkpoint("run1", 1)[0] == b"weights-1"
+
+
+def test_unserializable_meta_writes_nothing(store):
+    runs = RunStore(store)
+    with pytest.raises((TypeError, ValueError)):
+        runs.save_checkpoint("run1", 1, b"w", {"reward": float("nan")})
+    assert list(store.list()) == []
+
+
+def test_pointer_of_a_run_without_checkpoints_is_none(store):
+    runs = RunStore(store)
+    runs.write_file("run1", "hyperparameters.json", "{}")
+    assert runs.pointer("run1", "latest") is None
+    assert runs.list_checkpoints("run1") == []
+    with pytest.raises(StoreKeyError, match="run 'run1' has no latest checkpoint"):
+        runs.load_checkpoint("run1", "latest")
+
+
+def test_load_of_a_missing_run_is_a_store_key_error(store):
+    runs = RunStore(store)
+    _save(runs, "run1", [1])
+    for version in ("latest", "best", 1):
+        with pytest.raises(StoreKeyError, match="run 'ghost' does not exist"):
+            runs.load_checkpoint("ghost", version)
+    with pytest.raises(StoreKeyError, match="run 'run1' has no checkpoint 7"):
+        runs.load_checkpoint("run1", 7)
+
+
+@pytest.mark.parametrize("run_id", ["", "../x", "a/b", "-lead", "x" * 129, "sp ace", ".."])
+def test_bad_run_id_is_a_value_error_naming_it(run_id):
+    runs = RunStore(LocalStore("/nonexistent-never-written"))
+    with pytest.raises(ValueError, match="invalid run id"):
+        runs.save_checkpoint(run_id, 1, b"w", {})
+    with pytest.raises(ValueError):
+        runs.write_file(run_id, "config.json", "{}")
+
+
+def test_malformed_json_is_a_store_error_naming_the_key(store):
+    runs = RunStore(store)
+    _save(runs, "run1", [1])
+    store.put("runs/run1/latest.json", b"{not json")
+    with pytest.raises(StoreError, match="malformed JSON in .*runs/run1/latest.json"):
+        runs.pointer("run1", "latest")
+
+
+def test_run_files_round_trip(store):
+    runs = RunStore(store)
+    runs.write_file("run1", "reward_function.py", "def reward_function(params):\n    return 1.0\n")
+    runs.write_file("run1", "model_metadata.json", b'{"action_space": []}')
+    assert runs.read_file("run1", "reward_function.py").startswith(b"def reward_function")
+    assert json.loads(runs.read_file("run1", "model_metadata.json")) == {"action_space": []}
+    with pytest.raises(StoreKeyError, match="run 'run1' has no file 'config.json'"):
+        runs.read_file("run1", "config.json")
+    with pytest.raises(ValueError):
+        runs.write_file("run1", "latest.json", "{}")  # would clobber a pointer
+
+
+def test_list_runs_and_list_models_across_two_runs(store):
+    runs = RunStore(store)
+    _save(runs, "run-a", [1, 2])
+    _save(runs, "run-b", [1])
+    runs.set_pointer("run-a", "best", 1)
+    runs.save_checkpoint("run-b", 2, b"w", {})  # no env_steps recorded
+    assert runs.list_runs() == ["run-a", "run-b"]
+    models = list_models(store)
+    assert [(m["run_id"], m["version"]) for m in models] == [("run-a", 1), ("run-a", 2), ("run-b", 1), ("run-b", 2)]
+    required = {"run_id", "version", "env_steps", "created", "size_bytes", "latest", "best"}
+    assert all(required <= m.keys() for m in models)
+    assert [(m["latest"], m["best"]) for m in models] == [(False, True), (True, False), (False, False), (True, False)]
+    assert [m["env_steps"] for m in models] == [1000, 2000, 1000, None]
+    assert [m["version"] for m in list_models(store, "run-b")] == [1, 2]
+    assert list_models(store, "no-such-run") == []
+    json.dumps(models)  # the CLI writes this as --json

@@ -1,0 +1,284 @@
+"""Tests of the actor-critic networks and their serialization (common.policy)."""
+
+from __future__ import annotations
+
+import functools
+import io
+from pathlib import Path
+from unittest import mock
+
+import numpy as np
+import pytest
+import torch
+from pydantic import ValidationError
+from torch import nn
+
+from common.action_space import ActionSpace as DeepRacerActionSpace
+from common.action_space import ContinuousSpace, Range, default_action_space
+from common.policy import (
+    HIDDEN,
+    ActorCritic,
+    CheckpointError,
+    PolicyConfig,
+    action_space_spec,
+    build_policy,
+    checkpoint_from_bytes,
+    checkpoint_to_bytes,
+    conv_output_shape,
+    network_from_metadata,
+    state_dict_from_bytes,
+    state_dict_to_bytes,
+)
+
+DISCRETE = {"kind": "discrete", "n": 10}
+CONTINUOUS = {"kind": "continuous", "low": [-30.0, 0.5], "high": [30.0, 4.0]}
+SMALL = (36, 36, 1)  # the smallest frames the shallow trunk takes: fast tests of everything but shapes
+
+
+def _obs(batch: int, shape: tuple[int, int, int], seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 256, (batch, *shape), dtype=np.uint8)
+
+
+@functools.cache
+def _full_size(network: str, kind: str, stack: int) -> ActorCritic:
+    """A model on DeepRacer's 120×160 frames, built once, for shape tests.
+
+    The orthogonal init of the 11264×512 dense layer is a QR costing most of a second, and shapes do not
+    depend on it, so it is skipped here (the layers keep torch's default init); test_orthogonal_init_gains
+    checks the init on small frames.
+    """
+    torch.manual_seed(0)
+    spec = DISCRETE if kind == "discrete" else CONTINUOUS
+    with mock.patch.object(nn.init, "orthogonal_", lambda tensor, gain=1.0: tensor):
+        return build_policy((120, 160, stack), spec, PolicyConfig(network=network, stack_size=stack))
+
+
+# Each network with each action kind, and each with 1 and 2 stacked frames (pairwise, to keep the test fast).
+FULL_SIZE = [
+    ("shallow", "discrete", 1),
+    ("shallow", "continuous", 2),
+    ("deep", "discrete", 2),
+    ("deep", "continuous", 1),
+]
+
+
+@pytest.mark.parametrize(("network", "kind", "stack"), FULL_SIZE)
+def test_output_shapes(network: str, kind: str, stack: int) -> None:
+    model = _full_size(network, kind, stack)
+    obs = torch.from_numpy(_obs(3, (120, 160, stack)))
+    params, value = model(obs)
+    width = 10 if kind == "discrete" else 2
+    assert params.shape == (3, width) and value.shape == (3,)
+    logp, entropy, value = model.evaluate(obs, model.act(obs)[0])
+    assert logp.shape == entropy.shape == value.shape == (3,)
+
+
+def test_shallow_trunk_is_deepracers() -> None:
+    model = _full_size("shallow", "discrete", 1)
+    convs = [m for m in model.trunk if isinstance(m, nn.Conv2d)]
+    got = [(c.in_channels, c.out_channels, c.kernel_size, c.stride) for c in convs]
+    assert got == [(1, 32, (8, 8), (4, 4)), (32, 64, (4, 4), (2, 2)), (64, 64, (3, 3), (1, 1))]
+    # 120×160 → (120-8)//4+1 × (160-8)//4+1 = 29×39 → 13×18 → 11×16
+    assert model.conv_out_shape == (64, 11, 16)
+    (dense,) = [m for m in model.trunk if isinstance(m, nn.Linear)]
+    assert (dense.in_features, dense.out_features) == (64 * 11 * 16, HIDDEN) == (11264, 512)
+
+
+def test_deep_trunk_has_four_convs() -> None:
+    model = _full_size("deep", "discrete", 2)
+    convs = [m for m in model.trunk if isinstance(m, nn.Conv2d)]
+    assert [(c.in_channels, c.out_channels) for c in convs] == [(2, 32), (32, 64), (64, 64), (64, 128)]
+    assert model.conv_out_shape == (128, 9, 14)
+
+
+def test_conv_output_shape_checks_frame_size() -> None:
+    assert conv_output_shape((36, 36, 1), "shallow") == (64, 1, 1)
+    with pytest.raises(ValueError, match="too small"):
+        conv_output_shape((30, 160, 1), "shallow")
+
+
+def test_act_numpy_discrete_consistent_with_evaluate() -> None:
+    torch.manual_seed(1)
+    model = build_policy(SMALL, DISCRETE)
+    obs = _obs(5, SMALL)
+    actions, logp, values = model.act_numpy(obs)
+    assert actions.dtype == np.int64 and actions.shape == (5,) and ((actions >= 0) & (actions < 10)).all()
+    assert logp.dtype == values.dtype == np.float32 and logp.shape == values.shape == (5,)
+    with torch.no_grad():
+        logp2, _, values2 = model.evaluate(torch.from_numpy(obs), torch.from_numpy(actions))
+    np.testing.assert_allclose(logp, logp2.numpy(), atol=1e-5)
+    np.testing.assert_allclose(values, values2.numpy(), atol=1e-5)
+
+
+def test_act_numpy_continuous_consistent_with_evaluate() -> None:
+    torch.manual_seed(2)
+    model = build_policy(SMALL, CONTINUOUS)
+    obs = _obs(5, SMALL)
+    actions, logp, _ = model.act_numpy(obs)
+    assert actions.dtype == np.float32 and actions.shape == (5, 2) and np.isfinite(actions).all()
+    with torch.no_grad():
+        logp2, entropy, _ = model.evaluate(torch.from_numpy(obs), torch.from_numpy(actions))
+    np.testing.assert_allclose(logp, logp2.numpy(), atol=1e-4)
+    assert torch.isfinite(entropy).all()
+
+
+def test_continuous_starts_mid_range_with_half_range_std() -> None:
+    model = build_policy(SMALL, CONTINUOUS)
+    dist = model.distribution(torch.from_numpy(_obs(4, SMALL)))
+    # The 0.01-gain head starts near 0, i.e. near the middle of [-30, 30] and [0.5, 4].
+    np.testing.assert_allclose(dist.mean.detach().numpy(), [[0.0, 2.25]] * 4, atol=0.2)
+    np.testing.assert_allclose(dist.stddev.detach().numpy(), [[30.0, 1.75]] * 4, rtol=1e-6)
+
+
+def test_deterministic_act_picks_argmax() -> None:
+    model = build_policy(SMALL, DISCRETE)
+    obs = _obs(4, SMALL)
+    with torch.no_grad():
+        model.policy_head.bias[7] = 5.0  # make action 7 the most likely by far
+    actions, logp, _ = model.act_numpy(obs, deterministic=True)
+    assert (actions == 7).all()
+    logits, _ = model(torch.from_numpy(obs))
+    np.testing.assert_array_equal(actions, logits.argmax(-1).numpy())
+    np.testing.assert_allclose(logp, torch.log_softmax(logits, -1)[:, 7].detach().numpy(), atol=1e-6)
+
+
+def test_deterministic_continuous_act_is_the_mean() -> None:
+    model = build_policy(SMALL, CONTINUOUS)
+    obs = _obs(2, SMALL)
+    actions, _, _ = model.act_numpy(obs, deterministic=True)
+    mean, _ = model(torch.from_numpy(obs))
+    np.testing.assert_allclose(actions, mean.detach().numpy(), atol=1e-6)
+
+
+def test_orthogonal_init_gains() -> None:
+    model = build_policy(SMALL, DISCRETE)
+    # An orthogonal (out, in) matrix with out <= in and gain g has rows of norm g.
+    rows = model.policy_head.weight.norm(dim=1)
+    np.testing.assert_allclose(rows.detach().numpy(), 0.01, rtol=1e-4)
+    np.testing.assert_allclose(model.value_head.weight.norm().item(), 1.0, rtol=1e-4)
+    assert all(not m.bias.detach().any() for m in model.modules() if isinstance(m, nn.Linear | nn.Conv2d))
+
+
+def test_batch_norm_and_dropout_flags() -> None:
+    def kinds(cfg: PolicyConfig) -> set[type]:
+        return {type(m) for m in build_policy(SMALL, DISCRETE, cfg).modules()}
+
+    assert not kinds(PolicyConfig()) & {nn.BatchNorm2d, nn.Dropout}
+    with_bn = build_policy(SMALL, DISCRETE, PolicyConfig(batch_norm=True))
+    assert sum(isinstance(m, nn.BatchNorm2d) for m in with_bn.modules()) == 3  # one after each conv
+    assert nn.Dropout in kinds(PolicyConfig(dropout=0.2))
+    model = build_policy(SMALL, DISCRETE, PolicyConfig(batch_norm=True, dropout=0.2)).eval()
+    actions, logp, values = model.act_numpy(_obs(2, SMALL))
+    assert np.isfinite(logp).all() and np.isfinite(values).all()
+
+
+def test_network_from_metadata() -> None:
+    assert network_from_metadata("DEEP_CONVOLUTIONAL_NETWORK_SHALLOW") == "shallow"
+    assert network_from_metadata("DEEP_CONVOLUTIONAL_NETWORK") == "deep"
+    assert network_from_metadata("DEEP_CONVOLUTIONAL_NETWORK_DEEP") == "deep"
+    with pytest.raises(ValueError, match="unknown neural_network"):
+        network_from_metadata("RESNET")
+
+
+def test_action_space_spec_from_deepracer_metadata() -> None:
+    assert action_space_spec(default_action_space()) == {"kind": "discrete", "n": 10}
+    space = DeepRacerActionSpace(
+        action_space_type="continuous",
+        action_space=ContinuousSpace(steering_angle=Range(low=-30, high=30), speed=Range(low=0.5, high=4)),
+    )
+    assert action_space_spec(space) == CONTINUOUS
+
+
+def test_bad_inputs_rejected() -> None:
+    with pytest.raises(ValidationError):
+        PolicyConfig(netwrok="deep")
+    with pytest.raises(ValueError, match="stack_size"):
+        build_policy((120, 160, 2), DISCRETE)  # stack_size defaults to 1
+    with pytest.raises(ValueError, match="kind"):
+        build_policy(SMALL, {"kind": "multi"})
+    with pytest.raises(ValueError, match="n_actions"):
+        ActorCritic(SMALL, "discrete", n_actions=0)
+    with pytest.raises(ValueError, match="bounds"):
+        build_policy(SMALL, {"kind": "continuous", "low": [1.0], "high": [0.0]})
+    model = build_policy(SMALL, DISCRETE)
+    with pytest.raises(TypeError, match="uint8"):
+        model(torch.zeros(1, *SMALL))
+    with pytest.raises(ValueError, match="shape"):
+        model(torch.zeros(1, 40, 36, 1, dtype=torch.uint8))
+
+
+def _assert_same(a: object, b: object) -> None:
+    """Deep equality of nested dicts/lists of tensors and plain values."""
+    if isinstance(a, torch.Tensor):
+        assert isinstance(b, torch.Tensor) and a.dtype == b.dtype and torch.equal(a, b)
+    elif isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys()
+        for key in a:
+            _assert_same(a[key], b[key])
+    elif isinstance(a, list | tuple):
+        assert len(a) == len(b)
+        for x, y in zip(a, b, strict=True):
+            _assert_same(x, y)
+    else:
+        assert a == b
+
+
+def test_state_dict_round_trip() -> None:
+    model = build_policy(SMALL, CONTINUOUS, PolicyConfig(batch_norm=True))
+    sd = state_dict_from_bytes(state_dict_to_bytes(model.state_dict()))
+    _assert_same(model.state_dict(), sd)
+    other = build_policy(SMALL, CONTINUOUS, PolicyConfig(batch_norm=True))
+    other.load_state_dict(sd)
+    obs = torch.from_numpy(_obs(2, SMALL))
+    model.eval()
+    other.eval()
+    torch.testing.assert_close(model(obs), other(obs), rtol=0, atol=0)
+
+
+def test_checkpoint_round_trip_with_optimizer() -> None:
+    model = build_policy(SMALL, DISCRETE)
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    logp, _, value = model.evaluate(torch.from_numpy(_obs(2, SMALL)), torch.tensor([0, 1]))
+    (value.sum() - logp.sum()).backward()
+    optimizer.step()  # so that the optimizer has state to save
+    model_sd, optimizer_sd = checkpoint_from_bytes(checkpoint_to_bytes(model.state_dict(), optimizer.state_dict()))
+    _assert_same(model.state_dict(), model_sd)
+    _assert_same(optimizer.state_dict(), optimizer_sd)
+    assert checkpoint_from_bytes(checkpoint_to_bytes(model.state_dict(), None))[1] is None
+
+
+class _PickleBomb:
+    """Unpickling this opens (creates) a file: what a malicious checkpoint could do."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = str(path)
+
+    def __reduce__(self) -> tuple:
+        return (open, (self.path, "w"))
+
+
+def test_pickle_bomb_refused(tmp_path: Path) -> None:
+    target = tmp_path / "pwned"
+    buf = io.BytesIO()
+    torch.save({"model": {"w": torch.zeros(2)}, "optimizer": _PickleBomb(target)}, buf)
+    with pytest.raises(CheckpointError, match="io.open"):
+        checkpoint_from_bytes(buf.getvalue())
+    with pytest.raises(CheckpointError):
+        state_dict_from_bytes(buf.getvalue())
+    assert not target.exists()
+    # The bomb is real: an unrestricted torch.load would have created the file.
+    torch.load(io.BytesIO(buf.getvalue()), weights_only=False)
+    assert target.exists()
+
+
+@pytest.mark.parametrize("data", [b"", b"not a checkpoint", state_dict_to_bytes({"w": torch.zeros(1)})[:40]])
+def test_corrupt_bytes_refused(data: bytes) -> None:
+    with pytest.raises(CheckpointError):
+        checkpoint_from_bytes(data)
+
+
+def test_checkpoint_structure_checked() -> None:
+    with pytest.raises(CheckpointError, match="'model'"):
+        checkpoint_from_bytes(state_dict_to_bytes({"w": torch.zeros(1)}))
+    with pytest.raises(CheckpointError, match="state dict"):
+        state_dict_from_bytes(state_dict_to_bytes([torch.zeros(1)]))  # type: ignore[arg-type]

@@ -1,0 +1,113 @@
+"""`racer train` end to end: real processes, a real Redis, a store; checkpoints, policy switches, learning,
+and a worker killed mid-run while training goes on."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import redis
+
+from common.config import EnvConfig
+from common.keys import Keys
+from model_store import RunStore, open_store
+from sim.drive import drive_random
+
+HP = {"batch_size": 64, "num_epochs": 3, "num_episodes_between_training": 10, "lr": 0.001, "discount_factor": 0.99}
+
+
+def racer(*args, cwd, timeout):
+    return subprocess.run(
+        [sys.executable, "-m", "racer", *args], cwd=cwd, capture_output=True, text=True, timeout=timeout
+    )
+
+
+def worker_switches(log_dir: Path) -> dict[str, list[int]]:
+    out = {}
+    for log in sorted(log_dir.glob("worker-*.log")):
+        out[log.stem] = [
+            int(line.rsplit(" ", 1)[1]) for line in log.read_text().splitlines() if "acting with policy version" in line
+        ]
+    return out
+
+
+def test_train_two_workers_learns_and_survives_a_killed_worker(tmp_path, redis_url):
+    (tmp_path / "hp.json").write_text(json.dumps(HP))
+    run_id = "e2e"
+    cmd = [
+        sys.executable,
+        "-m",
+        "racer",
+        "train",
+        "--workers",
+        "2",
+        "--track",
+        "Straight_track",
+        "--run-id",
+        run_id,
+        "--hyperparams",
+        "hp.json",
+        "--time-limit",
+        "150s",
+        "--redis",
+        redis_url,
+    ]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    r, keys = redis.Redis.from_url(redis_url), Keys(run_id)
+    # Once both workers are sending, kill one of them hard, mid-segment.
+    deadline, pids = time.monotonic() + 120, []
+    while time.monotonic() < deadline and len(pids) < 2:
+        pids = [json.loads(r.get(k))["pid"] for k in r.scan_iter(match=keys.heartbeat_pattern)]
+        time.sleep(0.5)
+    assert len(pids) == 2, "both workers should send heartbeats"
+    time.sleep(20)
+    killed_at_version = json.loads(r.get(keys.policy))["version"]
+    os.kill(pids[0], signal.SIGKILL)
+    out, _ = proc.communicate(timeout=400)
+    assert proc.returncode == 0, out
+
+    runs = RunStore(open_store(str(tmp_path)))
+    versions = [c["version"] for c in runs.list_checkpoints(run_id)]
+    assert len(versions) >= 3 and versions == sorted(versions)
+    assert versions[-1] > killed_at_version + 1, "training went on after the worker was killed"
+    switches = worker_switches(tmp_path / "runs" / run_id / "logs")
+    assert any(max(v, default=0) >= 1 for v in switches.values()), switches  # workers picked up new policies
+    assert "exited with code -9" in out  # the launcher reported the dead worker
+
+    rows = [json.loads(line) for line in runs.read_file(run_id, "metrics.jsonl").decode().splitlines()]
+    random_progress = sum(r["progress"] for r in drive_random(EnvConfig(track="Straight_track"), 30, 1)) / 30
+    best_late = max(r["mean_progress"] for r in rows[-3:])
+    assert best_late > random_progress + 5, (random_progress, [r["mean_progress"] for r in rows])
+
+
+def test_train_embedded_redis_starts_and_cleans_up(tmp_path):
+    result = racer(
+        "train",
+        "--workers",
+        "1",
+        "--track",
+        "Straight_track",
+        "--run-id",
+        "emb",
+        "--time-limit",
+        "25s",
+        cwd=tmp_path,
+        timeout=240,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    runs = RunStore(open_store(str(tmp_path)))
+    assert runs.pointer("emb", "latest") is not None
+    # No redis-server or racer role process of this run is left behind.
+    ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True).stdout
+    assert "--run-id emb" not in ps
+
+
+def test_bad_reward_function_fails_before_starting_anything(tmp_path):
+    (tmp_path / "r.py").write_text("def reward_function(params):\n    return params['nope']\n")
+    result = racer("train", "--reward-fn", "r.py", "--run-id", "bad", "--time-limit", "10s", cwd=tmp_path, timeout=120)
+    assert result.returncode == 2
+    assert "r.py" in result.stderr and "KeyError" in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "runs" / "bad").exists()

@@ -1,0 +1,126 @@
+"""Trainer and rollout worker against a real Redis and a real store (a directory, and S3 via moto)."""
+
+import json
+
+import numpy as np
+import pytest
+import redis
+import torch
+
+from common.keys import Keys
+from common.protocol import PolicyVersion
+from model_store import RunStore, open_store
+from racer.runconfig import build_run
+from rollout_worker.worker import RolloutWorker, WorkerOptions
+from tests.conftest import S3_BUCKET
+from trainer.process import METRICS_FILE, Trainer, TrainerOptions
+
+
+@pytest.fixture
+def hp_file(tmp_path):
+    path = tmp_path / "hyperparameters.json"
+    hp = {"batch_size": 32, "num_epochs": 1, "num_episodes_between_training": 2, "lr": 0.001, "discount_factor": 0.99}
+    path.write_text(json.dumps(hp))
+    return str(path)
+
+
+def start(run_id, redis_url, store, hp_file, **run_updates):
+    run, files = build_run(run_id, track="Straight_track", hyperparams=hp_file)
+    run = run.model_copy(update={"segment_steps": 16, **run_updates})
+    trainer = Trainer(run, TrainerOptions(redis_url, store, run_files=files))
+    trainer.start()
+    worker = RolloutWorker(WorkerOptions(run_id, redis_url, store, worker_index=0))
+    worker.start()
+    return trainer, worker
+
+
+def fill(trainer, worker, max_segments=40):
+    """Push segments until the trainer has enough episodes for an iteration."""
+    for _ in range(max_segments):
+        worker.push(worker.collect())
+        trainer.read(block_ms=100)
+        if trainer.ready():
+            return
+    raise AssertionError("not enough episodes for an iteration")
+
+
+def test_trainer_publishes_v0_and_worker_pushes_segments(redis_url, run_id, tmp_path, hp_file):
+    store = str(tmp_path / "store")
+    trainer, worker = start(run_id, redis_url, store, hp_file)
+    r, keys = redis.Redis.from_url(redis_url), Keys(run_id)
+    assert PolicyVersion.from_json(r.get(keys.policy)).version == 0
+    runs = RunStore(open_store(store))
+    assert runs.pointer(run_id, "latest")["version"] == 0
+    for name in ("config.json", "reward_function.py", "model_metadata.json", "hyperparameters.json"):
+        assert runs.read_file(run_id, name)
+    assert worker.policy_version == 0
+    worker.push(worker.collect())
+    assert trainer.read(block_ms=500) == 1
+    assert trainer.stats.env_steps == 16
+    heartbeat = json.loads(r.get(keys.heartbeat(worker.worker_id)))
+    assert heartbeat["segments"] == 1 and 0 < r.ttl(keys.heartbeat(worker.worker_id)) <= 16
+    assert [w["worker_id"] for w in trainer.workers()] == [worker.worker_id]
+    worker.close()
+
+
+def test_an_iteration_publishes_a_version_the_worker_switches_to(redis_url, run_id, tmp_path, hp_file):
+    store = str(tmp_path / "store")
+    trainer, worker = start(run_id, redis_url, store, hp_file)
+    fill(trainer, worker)
+    stats = trainer.train()
+    assert all(np.isfinite(v) for v in stats.values())
+    assert trainer.version == 1
+    runs = RunStore(open_store(store))
+    assert [c["version"] for c in runs.list_checkpoints(run_id)] == [0, 1]
+    rows = [json.loads(line) for line in runs.read_file(run_id, METRICS_FILE).decode().splitlines()]
+    assert rows[0]["iteration"] == 1 and rows[0]["episodes"] >= 2 and 0 <= rows[0]["mean_progress"] <= 100
+    assert worker.poll_policy() is True and worker.policy_version == 1
+    for name, tensor in trainer.model.state_dict().items():
+        assert torch.equal(tensor, worker.model.state_dict()[name]), name
+    assert worker.poll_policy() is False  # nothing newer
+    worker.close()
+
+
+def test_stale_and_malformed_segments_are_dropped_and_counted(redis_url, run_id, tmp_path, hp_file):
+    trainer, worker = start(run_id, redis_url, str(tmp_path / "store"), hp_file, max_policy_lag=0)
+    seg = worker.collect()
+    trainer.version = 1  # as if the trainer had moved on while the worker was still acting with v0
+    worker.push(seg)
+    r = redis.Redis.from_url(redis_url)
+    r.xadd(Keys(run_id).segments, {"header": b"not json"})
+    r.xadd(Keys(run_id).segments, {"junk": b"1"})
+    assert trainer.read(block_ms=200) == 0
+    assert trainer.stats.dropped == {"stale": 1, "bad_header": 1, "no_header": 1}
+    assert trainer.buffer == []
+    worker.close()
+
+
+def test_resume_restores_version_steps_and_optimizer(redis_url, run_id, tmp_path, hp_file):
+    store = str(tmp_path / "store")
+    trainer, worker = start(run_id, redis_url, store, hp_file)
+    fill(trainer, worker)
+    trainer.train()
+    worker.close()
+    again = Trainer(trainer.run, TrainerOptions(redis_url, store, resume=True))
+    again.start()
+    assert again.version == 1 and again.stats.env_steps == trainer.stats.env_steps
+    before = trainer.optimizer.state_dict()["state"]
+    after = again.optimizer.state_dict()["state"]
+    assert before.keys() == after.keys() and torch.equal(before[0]["exp_avg"], after[0]["exp_avg"])
+    assert len(again.metrics) == 1
+
+
+def test_the_loop_works_with_an_s3_store(redis_url, run_id, s3_server, hp_file):
+    store = f"s3://{S3_BUCKET}/it"
+    run, files = build_run(run_id, track="Straight_track", hyperparams=hp_file)
+    run = run.model_copy(update={"segment_steps": 16})
+    trainer = Trainer(run, TrainerOptions(redis_url, store, s3_endpoint=s3_server, run_files=files))
+    trainer.start()
+    worker = RolloutWorker(WorkerOptions(run_id, redis_url, store, s3_endpoint=s3_server))
+    worker.start()
+    fill(trainer, worker)
+    trainer.train()
+    assert worker.poll_policy() and worker.policy_version == 1
+    runs = RunStore(open_store(store, s3_server))
+    assert runs.pointer(run_id, "latest")["version"] == 1
+    worker.close()

@@ -1,0 +1,219 @@
+"""PPO as small pure torch functions, and one linear ``update()`` that does no I/O.
+
+The functions follow CleanRL's PPO (clipped surrogate, per-minibatch advantage normalization, global
+gradient-norm clipping) with SB3's typed batch. Each is tested against hand-computed values in
+``tests/test_ppo.py``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Literal
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+ValueLossKind = Literal["huber", "mse"]
+
+
+@torch.no_grad()
+def compute_gae(
+    rewards: torch.Tensor,
+    values: torch.Tensor,
+    terminated: torch.Tensor,
+    truncated: torch.Tensor,
+    next_values: torch.Tensor,
+    gamma: float,
+    lam: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Generalized advantage estimates and returns of ONE segment of T consecutive steps, in time order.
+
+    All inputs are 1-D tensors of length T (``terminated`` / ``truncated`` may be bool or 0/1):
+
+    * ``rewards[t]`` = r_t, ``values[t]`` = V(o_t) as seen at rollout time;
+    * ``next_values[t]`` = V(o_{t+1}) as seen at rollout time. For the segment's last step it is the bootstrap
+      value of the final next observation; for a truncated step (time limit) it is V of the episode's final
+      observation, so truncation bootstraps; for a terminated step it is ignored (no future after the end).
+
+    The recursion, backwards from t = T-1 with gae_T = 0::
+
+        delta_t = r_t + gamma * next_values[t] * (1 - terminated_t) - values_t
+        gae_t   = delta_t + gamma * lam * (1 - done_t) * gae_{t+1},   done_t = terminated_t or truncated_t
+
+    so the advantage never flows across an episode boundary, and the segment's end bootstraps only through
+    ``next_values[T-1]``. Returns (advantages, returns) with returns = advantages + values.
+    """
+    if rewards.dim() != 1:
+        raise ValueError(f"rewards has shape {tuple(rewards.shape)}, expected one segment (T,)")
+    n = rewards.shape[0]
+    others = {"values": values, "terminated": terminated, "truncated": truncated, "next_values": next_values}
+    for name, x in others.items():
+        if x.shape != (n,):
+            raise ValueError(f"{name} has shape {tuple(x.shape)}, expected ({n},) like rewards")
+    rewards = rewards.float()
+    # where(), not a multiply by (1 - terminated): a value written as NaN for a terminal step stays ignored.
+    future = torch.where(terminated.bool(), 0.0, gamma * next_values.float())
+    not_done = 1.0 - (terminated.bool() | truncated.bool()).float()
+    deltas = rewards + future - values.float()
+    advantages = torch.zeros_like(rewards)
+    gae = torch.zeros((), dtype=rewards.dtype)
+    for t in reversed(range(n)):
+        gae = deltas[t] + gamma * lam * not_done[t] * gae
+        advantages[t] = gae
+    return advantages, advantages + values.float()
+
+
+def policy_loss(
+    new_logp: torch.Tensor, old_logp: torch.Tensor, advantages: torch.Tensor, clip_eps: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """PPO's clipped surrogate: (loss, clip fraction, approx KL).
+
+    loss = -mean(min(ratio * A, clip(ratio, 1 - eps, 1 + eps) * A)) with ratio = exp(new_logp - old_logp).
+    clip fraction = share of samples with |ratio - 1| > eps; approx KL = mean((ratio - 1) - log ratio), the
+    low-variance, always non-negative estimator of KL(old || new) (Schulman's k3). The two statistics carry
+    no gradient.
+    """
+    log_ratio = new_logp - old_logp
+    ratio = log_ratio.exp()
+    surrogate = ratio * advantages
+    clipped = ratio.clamp(1.0 - clip_eps, 1.0 + clip_eps) * advantages
+    loss = -torch.min(surrogate, clipped).mean()
+    with torch.no_grad():
+        clip_fraction = ((ratio - 1.0).abs() > clip_eps).float().mean()
+        approx_kl = ((ratio - 1.0) - log_ratio).mean()
+    return loss, clip_fraction, approx_kl
+
+
+def value_loss(values: torch.Tensor, returns: torch.Tensor, kind: ValueLossKind = "huber") -> torch.Tensor:
+    """Value-function loss: ``huber`` = smooth L1 with delta 1 (mean), ``mse`` = 0.5 * mean((V - R)^2).
+
+    The 0.5 makes the mse gradient (V - R), as in CleanRL; huber equals it for |V - R| <= 1.
+    """
+    if kind == "huber":
+        return F.smooth_l1_loss(values, returns, beta=1.0)
+    if kind == "mse":
+        return 0.5 * (values - returns).pow(2).mean()
+    raise ValueError(f"value loss kind must be 'huber' or 'mse', got {kind!r}")
+
+
+def entropy_bonus(entropy: torch.Tensor) -> torch.Tensor:
+    """Mean policy entropy of a minibatch (subtracted from the loss, weighted by beta_entropy)."""
+    return entropy.mean()
+
+
+def normalize_advantages(adv: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
+    """(adv - mean) / (std + eps), std unbiased; a single advantage normalizes to 0 (its std is undefined)."""
+    if adv.numel() < 2:
+        return adv - adv.mean()
+    return (adv - adv.mean()) / (adv.std() + eps)
+
+
+def explained_variance(values: torch.Tensor, returns: torch.Tensor) -> float:
+    """1 - Var(returns - values) / Var(returns): 1 = perfect values, 0 = no better than a constant.
+
+    NaN when the returns have no variance, as in SB3.
+    """
+    var_returns = returns.var(unbiased=False)
+    if var_returns == 0:
+        return float("nan")
+    return float(1.0 - (returns - values).var(unbiased=False) / var_returns)
+
+
+@dataclass
+class PPOBatch:
+    """One update's transitions, flattened over segments; every field has the same first dimension N."""
+
+    obs: torch.Tensor
+    """uint8 (N, H, W, C) observations o_t."""
+    actions: torch.Tensor
+    """int64 (N,) action indices, or float32 (N, d) continuous actions in env units."""
+    old_logp: torch.Tensor
+    """float32 (N,) log π_old(a_t | o_t) under the behaviour policy."""
+    advantages: torch.Tensor
+    """float32 (N,) GAE advantages (not normalized; ``update`` normalizes per minibatch)."""
+    returns: torch.Tensor
+    """float32 (N,) value targets: advantages + old_values."""
+    old_values: torch.Tensor
+    """float32 (N,) V(o_t) under the behaviour policy."""
+
+    def __post_init__(self) -> None:
+        n = len(self)
+        for f in fields(self):
+            if getattr(self, f.name).shape[0] != n:
+                raise ValueError(f"PPOBatch.{f.name} has {getattr(self, f.name).shape[0]} rows, obs has {n}")
+
+    def __len__(self) -> int:
+        return int(self.obs.shape[0])
+
+    def select(self, idx: torch.Tensor) -> PPOBatch:
+        """The rows ``idx`` of every field."""
+        return PPOBatch(*(getattr(self, f.name)[idx] for f in fields(self)))
+
+
+def update(
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    batch: PPOBatch,
+    *,
+    epochs: int,
+    minibatch_size: int,
+    clip_eps: float,
+    beta_entropy: float,
+    value_coef: float,
+    loss_type: ValueLossKind,
+    max_grad_norm: float,
+    generator: torch.Generator,
+) -> dict[str, float]:
+    """PPO epochs over ``batch``; returns the means over minibatches of the losses and statistics.
+
+    Each epoch shuffles the rows with ``generator`` (so a seed makes the update reproducible) and takes
+    minibatches of ``minibatch_size`` (the last may be smaller). ``model.evaluate(obs, actions)`` must return
+    (log_prob, entropy, value). Keys: policy_loss, value_loss, entropy, approx_kl, clip_fraction, grad_norm
+    (before clipping) and explained_variance (of the batch's old values).
+    """
+    model.train()
+    sums = dict.fromkeys(("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction", "grad_norm"), 0.0)
+    n_steps = 0
+    for _ in range(epochs):
+        order = torch.randperm(len(batch), generator=generator)
+        for start in range(0, len(batch), minibatch_size):
+            mb = batch.select(order[start : start + minibatch_size])
+            stats = _minibatch_step(model, optimizer, mb, clip_eps, beta_entropy, value_coef, loss_type, max_grad_norm)
+            for key, value in stats.items():
+                sums[key] += value
+            n_steps += 1
+    means = {key: total / max(n_steps, 1) for key, total in sums.items()}
+    means["explained_variance"] = explained_variance(batch.old_values, batch.returns)
+    return means
+
+
+def _minibatch_step(
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    mb: PPOBatch,
+    clip_eps: float,
+    beta_entropy: float,
+    value_coef: float,
+    loss_type: ValueLossKind,
+    max_grad_norm: float,
+) -> dict[str, float]:
+    """One gradient step on one minibatch; returns its losses and statistics."""
+    new_logp, entropy, values = model.evaluate(mb.obs, mb.actions)
+    advantages = normalize_advantages(mb.advantages)  # per minibatch, as in CleanRL
+    pg_loss, clip_fraction, approx_kl = policy_loss(new_logp, mb.old_logp, advantages, clip_eps)
+    v_loss = value_loss(values, mb.returns, loss_type)
+    ent = entropy_bonus(entropy)
+    total = pg_loss + value_coef * v_loss - beta_entropy * ent
+    optimizer.zero_grad(set_to_none=True)
+    total.backward()
+    grad_norm = nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
+    optimizer.step()
+    return {
+        "policy_loss": pg_loss.item(),
+        "value_loss": v_loss.item(),
+        "entropy": ent.item(),
+        "approx_kl": approx_kl.item(),
+        "clip_fraction": clip_fraction.item(),
+        "grad_norm": grad_norm.item(),
+    }

@@ -1,0 +1,345 @@
+"""The trainer process: pull segments from Redis, run PPO, write checkpoints, publish policy versions.
+
+DeepRacer trains after every ``num_episodes_between_training`` episodes; so do we: segments are
+buffered until that many episodes have ended in them, then PPO runs ``num_epochs`` epochs over the
+buffer in minibatches of ``batch_size``, a checkpoint is written to the store (pointer last) and the
+new version is announced in Redis, where workers pick it up between segments.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import resource
+import statistics
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from common.config import RunConfig
+from common.keys import Keys
+from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes, checkpoint_to_bytes
+from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, decode_segment
+from common.redis_util import connect
+from model_store import RunStore, StoreKeyError, open_store
+from model_store.localize import localize_env
+from sim.env import RacerEnv
+from trainer.ppo import PPOBatch, compute_gae, update
+
+log = logging.getLogger("racer.trainer")
+METRICS_FILE = "metrics.jsonl"
+"""Per-iteration figures of a run, one JSON object a line, in the run's folder of the store."""
+
+
+@dataclass
+class TrainerOptions:
+    """How to reach the run and when to stop."""
+
+    redis_url: str
+    store: str = "."
+    s3_endpoint: str | None = None
+    resume: bool = False
+    """Continue from the run's latest checkpoint instead of starting it."""
+    time_limit_s: float | None = None
+    """Stop after this many seconds of training, None = until stopped."""
+    torch_threads: int = 1
+    """Threads for PyTorch in the trainer (the workers use one each)."""
+    run_files: dict[str, bytes] = field(default_factory=dict)
+    """Files written into a new run: reward_function.py, model_metadata.json, hyperparameters.json."""
+
+
+@dataclass
+class Stats:
+    """What the trainer has seen, for the status line and the metrics."""
+
+    env_steps: int = 0
+    episodes: int = 0
+    iteration: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
+    lag: list[int] = field(default_factory=list)
+    recent: list[EpisodeSummary] = field(default_factory=list)
+    started: float = field(default_factory=time.monotonic)
+
+    def drop(self, reason: str) -> None:
+        """Count a dropped segment."""
+        self.dropped[reason] = self.dropped.get(reason, 0) + 1
+
+
+class Trainer:
+    """PPO over segments from Redis; see the module docstring."""
+
+    def __init__(self, run: RunConfig, opts: TrainerOptions, stop: threading.Event | None = None) -> None:
+        self.run, self.opts = run, opts
+        self.stop = stop or threading.Event()
+        self.keys = Keys(run.run_id)
+        self.redis = connect(opts.redis_url)
+        self.runs = RunStore(open_store(opts.store, opts.s3_endpoint))
+        self.hp = run.hyperparams
+        self.version = 0
+        self.stats = Stats()
+        self.buffer: list[Segment] = []
+        self.last_id = "0-0"
+        self.metrics: list[dict] = []
+        self._workdir = tempfile.TemporaryDirectory(prefix="racer-trainer-")
+
+    # --- start --------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Resume from the latest checkpoint, or write the run's files and publish version 0."""
+        if not self.opts.resume:
+            for name, data in self.opts.run_files.items():
+                self.runs.write_file(self.run.run_id, name, data)
+            self.runs.write_file(self.run.run_id, "config.json", self.run.model_dump_json(indent=2))
+        self._build()
+        if self.opts.resume:
+            self._resume()
+        else:
+            self._checkpoint()
+        self._publish()
+
+    def _build(self) -> None:
+        """Network and optimizer for the run's action space (read from the run's stored files)."""
+        env_cfg = localize_env(self.run, self.runs, Path(self._workdir.name))
+        probe = RacerEnv(config=env_cfg)  # the action space and observation shape the workers will see
+        self.obs_shape = (*probe.observation_space.shape[:2], self.hp.stack_size)
+        self.n_actions = probe.actions.n if probe.actions.discrete else None
+        spec = action_space_spec(probe.actions)
+        probe.close()
+        torch.manual_seed(self.run.seed)
+        self.model: ActorCritic = build_policy(self.obs_shape, spec, self.run.policy)
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=self.hp.lr, weight_decay=self.run.policy.l2)
+        self.generator = torch.Generator().manual_seed(self.run.seed)
+
+    def _resume(self) -> None:
+        payload, meta = self.runs.load_checkpoint(self.run.run_id, "latest")
+        model_sd, optim_sd = checkpoint_from_bytes(payload)
+        self.model.load_state_dict(model_sd)
+        if optim_sd is not None:
+            self.optimizer.load_state_dict(optim_sd)
+        self.version = int(meta["version"])
+        self.stats.env_steps = int(meta.get("env_steps", 0))
+        self.stats.episodes = int(meta.get("episodes", 0))
+        self.stats.iteration = int(meta.get("iteration", self.version))
+        with contextlib.suppress(StoreKeyError):
+            lines = self.runs.read_file(self.run.run_id, METRICS_FILE).decode().splitlines()
+            self.metrics = [json.loads(line) for line in lines if line.strip()]
+        log.info("resumed run %s at version %d (%d env steps)", self.run.run_id, self.version, self.stats.env_steps)
+
+    def _checkpoint(self) -> dict:
+        payload = checkpoint_to_bytes(self.model.state_dict(), self.optimizer.state_dict())
+        meta = {
+            "env_steps": self.stats.env_steps,
+            "episodes": self.stats.episodes,
+            "iteration": self.stats.iteration,
+            "config": json.loads(self.run.model_dump_json()),
+        }
+        return self.runs.save_checkpoint(self.run.run_id, self.version, payload, meta)
+
+    def _publish(self) -> None:
+        key = f"runs/{self.run.run_id}/checkpoints/{self.version:09d}.pt"
+        pv = PolicyVersion(self.version, key, time.time()).to_json()
+        pipe = self.redis.pipeline(transaction=False)
+        pipe.set(self.keys.policy, pv)
+        pipe.publish(self.keys.policy_channel, pv)
+        pipe.execute()
+
+    # --- the loop -----------------------------------------------------------------------------
+    def run_forever(self) -> None:
+        """Read, train, publish until stopped or out of time."""
+        deadline = None if self.opts.time_limit_s is None else time.monotonic() + self.opts.time_limit_s
+        last_status = 0.0
+        while not self.stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            self.read(block_ms=500)
+            if self.ready():
+                self.train()
+            if time.monotonic() - last_status > 1.0:
+                self.write_status()
+                last_status = time.monotonic()
+            if self._done():
+                break
+        self.write_status()
+
+    def read(self, block_ms: int = 500, count: int = 64) -> int:
+        """Pull new segments into the buffer (validating, dropping stale ones); returns how many were kept."""
+        reply = self.redis.xread({self.keys.segments: self.last_id}, count=count, block=block_ms)
+        kept = 0
+        for _, entries in reply or []:
+            for entry_id, fields in entries:
+                self.last_id = entry_id
+                kept += self._accept(fields)
+        return kept
+
+    def _accept(self, fields: dict) -> int:
+        try:
+            seg = decode_segment(fields, self.run.run_id, self.obs_shape, self.n_actions)
+        except ProtocolError as exc:
+            self.stats.drop(exc.reason)
+            log.warning("dropped a segment: %s", exc)
+            return 0
+        lag = self.version - seg.policy_version
+        self.stats.lag.append(lag)
+        if lag > self.run.max_policy_lag or lag < 0:
+            self.stats.drop("stale" if lag > 0 else "future_version")
+            return 0
+        self.buffer.append(seg)
+        self.stats.env_steps += seg.steps
+        self.stats.episodes += len(seg.episodes)
+        self.stats.recent = (self.stats.recent + seg.episodes)[-100:]
+        return 1
+
+    def ready(self) -> bool:
+        """True once the buffer holds ``num_episodes_between_training`` finished episodes and a batch."""
+        episodes = sum(len(s.episodes) for s in self.buffer)
+        steps = sum(s.steps for s in self.buffer)
+        return episodes >= self.hp.num_episodes_between_training and steps >= self.hp.batch_size
+
+    def train(self) -> dict[str, float]:
+        """One PPO iteration on the buffer, then checkpoint and publish the next version."""
+        t0 = time.monotonic()
+        self.redis.set(self.keys.training, self.version, ex=600)
+        batch = make_batch(self.buffer, self.hp.discount_factor, self.run.hyperparams.gae_lambda)
+        episodes = [e for s in self.buffer for e in s.episodes]
+        lags = [self.version - s.policy_version for s in self.buffer]
+        self.buffer = []
+        self.model.train()
+        result = update(
+            self.model,
+            self.optimizer,
+            batch,
+            epochs=self.hp.num_epochs,
+            minibatch_size=self.hp.batch_size,
+            clip_eps=self.hp.clip_epsilon,
+            beta_entropy=self.hp.beta_entropy,
+            value_coef=self.hp.value_loss_coef,
+            loss_type=self.hp.value_loss_kind,
+            max_grad_norm=self.hp.max_grad_norm,
+            generator=self.generator,
+        )
+        self.model.eval()
+        self.version += 1
+        self.stats.iteration += 1
+        self._checkpoint()
+        self._publish()
+        self.redis.delete(self.keys.training)
+        self._record(result, episodes, lags, batch, time.monotonic() - t0)
+        log.info("iteration %d: version %d, %s", self.stats.iteration, self.version, result)
+        return result
+
+    def _record(
+        self, losses: dict, episodes: list[EpisodeSummary], lags: list[int], batch: PPOBatch, train_s: float
+    ) -> None:
+        """Append this iteration's figures to the run's metrics.jsonl (rewritten whole: object stores can't append)."""
+        row = {
+            "iteration": self.stats.iteration,
+            "policy_version": self.version,
+            "env_steps": self.stats.env_steps,
+            "episodes": len(episodes),
+            "batch_steps": int(batch.actions.shape[0]),
+            "mean_progress": statistics.fmean(e.progress for e in episodes) if episodes else 0.0,
+            "mean_reward": statistics.fmean(e.reward for e in episodes) if episodes else 0.0,
+            "laps_completed": sum(e.status == "lap_complete" for e in episodes),
+            "mean_policy_lag": statistics.fmean(lags) if lags else 0.0,
+            "train_s": train_s,
+            "dropped": dict(self.stats.dropped),
+            "time": time.time(),
+            **{k: float(v) for k, v in losses.items()},
+        }
+        self.metrics.append(row)
+        text = "".join(json.dumps(m) + "\n" for m in self.metrics)
+        self.runs.write_file(self.run.run_id, METRICS_FILE, text)
+
+    def _done(self) -> bool:
+        hp, recent = self.hp, self.stats.recent
+        if self.stats.episodes >= hp.term_cond_max_episodes:
+            return True
+        return len(recent) >= 20 and statistics.fmean(e.reward for e in recent[-20:]) >= hp.term_cond_avg_score
+
+    def status(self) -> dict:
+        """Progress figures for the display and for ``racer train``."""
+        recent = self.stats.recent[-20:]
+        elapsed = time.monotonic() - self.stats.started
+        return {
+            "iteration": self.stats.iteration,
+            "policy_version": self.version,
+            "env_steps": self.stats.env_steps,
+            "episodes": self.stats.episodes,
+            "steps_per_s": self.stats.env_steps / elapsed if elapsed > 0 else 0.0,
+            "mean_progress": statistics.fmean(e.progress for e in recent) if recent else 0.0,
+            "mean_reward": statistics.fmean(e.reward for e in recent) if recent else 0.0,
+            "dropped": dict(self.stats.dropped),
+            "max_lag": max(self.stats.lag[-200:], default=0),
+            "workers": self.workers(),
+            "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+            "time": time.time(),
+        }
+
+    def write_status(self) -> None:
+        """Publish the status to Redis (a key with a TTL) for ``racer train``'s live line."""
+        self.redis.set(self.keys.trainer_status, json.dumps(self.status()), ex=30)
+
+    def workers(self) -> list[dict]:
+        """Live workers from their heartbeat keys (SCAN, never KEYS)."""
+        out = []
+        for key in self.redis.scan_iter(match=self.keys.heartbeat_pattern, count=100):
+            raw = self.redis.get(key)
+            if raw is None:
+                continue  # expired between SCAN and GET
+            try:
+                out.append(Heartbeat.from_json(raw).__dict__)
+            except ProtocolError:
+                self.stats.drop("bad_heartbeat")
+        return out
+
+
+def make_batch(segments: list[Segment], gamma: float, lam: float) -> PPOBatch:
+    """GAE per segment (bootstrapping from the values the workers sent), then one flat batch."""
+    parts = {k: [] for k in ("obs", "actions", "logp", "adv", "ret", "values")}
+    for seg in segments:
+        a = seg.arrays
+        # Arrays decoded from Redis are read-only views of the message bytes: torch wants its own copy.
+        t = {k: torch.tensor(a[k], dtype=torch.float32) for k in ("rewards", "values", "next_values")}
+        adv, ret = compute_gae(
+            t["rewards"],
+            t["values"],
+            torch.tensor(a["terminated"], dtype=torch.float32),
+            torch.tensor(a["truncated"], dtype=torch.float32),
+            t["next_values"],
+            gamma,
+            lam,
+        )
+        parts["obs"].append(torch.from_numpy(a["obs"].copy()))
+        parts["actions"].append(torch.from_numpy(a["actions"].copy()))
+        parts["logp"].append(torch.from_numpy(a["logp"].copy()))
+        parts["values"].append(t["values"])
+        parts["adv"].append(adv)
+        parts["ret"].append(ret)
+    cat = {k: torch.cat(v) for k, v in parts.items()}
+    return PPOBatch(
+        obs=cat["obs"],
+        actions=cat["actions"],
+        old_logp=cat["logp"],
+        advantages=cat["adv"],
+        returns=cat["ret"],
+        old_values=cat["values"],
+    )
+
+
+def run_trainer(run: RunConfig, opts: TrainerOptions, stop: threading.Event | None = None) -> dict:
+    """The ``racer trainer`` process: start or resume the run, then train until stopped; returns the status."""
+    torch.set_num_threads(max(1, opts.torch_threads))
+    trainer = Trainer(run, opts, stop)
+    try:
+        trainer.start()
+        trainer.run_forever()
+        return trainer.status()
+    finally:
+        trainer._workdir.cleanup()
+
+
+def read_run_file(path: str | Path | None) -> bytes | None:
+    """Bytes of a user file to store in the run, or None."""
+    return None if path is None else Path(path).read_bytes()
