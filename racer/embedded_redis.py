@@ -45,11 +45,11 @@ class EmbeddedRedis:
     can collide and nothing else on the machine can reach it.
     """
 
-    def __init__(self, port: int | None = None, maxmemory: str | None = None) -> None:
+    def __init__(self, port: int | None = None, maxmemory: str | None = None, binary: str | None = None) -> None:
         self._dir = tempfile.TemporaryDirectory(prefix="racer-redis-")
         self.port = port
         self.socket = Path(self._dir.name) / "redis.sock"
-        args = [find_redis_server(), "--save", "", "--appendonly", "no", "--dir", self._dir.name]
+        args = [binary or find_redis_server(), "--save", "", "--appendonly", "no", "--dir", self._dir.name]
         args += ["--loglevel", "warning", "--logfile", str(Path(self._dir.name) / "redis.log")]
         if port is None:
             args += ["--port", "0", "--unixsocket", str(self.socket), "--unixsocketperm", "700"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import platform
 import statistics
@@ -18,6 +19,10 @@ from sim.env import RacerEnv
 def pin_to_one_core() -> int | None:
     """Run this process on one CPU core with single-threaded OpenCV; returns the core, or None if unsupported."""
     cv2.setNumThreads(1)
+    with contextlib.suppress(ImportError):
+        import torch
+
+        torch.set_num_threads(1)  # two OpenMP threads spinning on one core are many times slower than one
     if not hasattr(os, "sched_setaffinity"):
         return None
     core = sorted(os.sched_getaffinity(0))[-1]
