@@ -34,7 +34,8 @@ class TrainOptions:
     s3_endpoint: str | None = None
     time_limit_s: float | None = None
     resume: bool = False
-    trainer_threads: int = 1
+    trainer_threads: int = 2
+    """PyTorch threads of the trainer: with max_policy_lag 0 the workers wait while it trains, so it can use two."""
 
 
 def new_run_id() -> str:

@@ -10,7 +10,6 @@ from concurrent.futures import ThreadPoolExecutor
 import boto3
 import pytest
 from botocore.config import Config
-from moto.server import ThreadedMotoServer
 
 from model_store import (
     LocalStore,
@@ -23,30 +22,14 @@ from model_store import (
 )
 
 BUCKET = "racer-models"
-SECRET = "testing"  # the fake AWS_SECRET_ACCESS_KEY; it must never show up in an error message
+SECRET = "testing-secret"  # conftest's fake AWS_SECRET_ACCESS_KEY; it must never show up in an error message
 
 
 @pytest.fixture(scope="module")
-def s3_endpoint():
-    """A moto S3 server on a free local port with one bucket; fake credentials in the environment."""
-    with pytest.MonkeyPatch.context() as mp:
-        # Keep the developer's own AWS setup (profiles, endpoints, tokens) out of the tests.
-        for name in ("AWS_ENDPOINT_URL", "AWS_ENDPOINT_URL_S3", "AWS_PROFILE", "AWS_SESSION_TOKEN"):
-            mp.delenv(name, raising=False)
-        mp.setenv("AWS_SHARED_CREDENTIALS_FILE", "/nonexistent/credentials")
-        mp.setenv("AWS_CONFIG_FILE", "/nonexistent/config")
-        mp.setenv("AWS_ACCESS_KEY_ID", "testing")
-        mp.setenv("AWS_SECRET_ACCESS_KEY", SECRET)
-        mp.setenv("AWS_DEFAULT_REGION", "us-east-1")
-        server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
-        server.start()
-        try:
-            host, port = server.get_host_and_port()
-            endpoint = f"http://{host}:{port}"
-            boto3.client("s3", endpoint_url=endpoint).create_bucket(Bucket=BUCKET)
-            yield endpoint
-        finally:
-            server.stop()
+def s3_endpoint(s3_server):
+    """The session's moto S3 server (tests/conftest.py) with this module's bucket."""
+    boto3.client("s3", endpoint_url=s3_server).create_bucket(Bucket=BUCKET)
+    return s3_server
 
 
 @pytest.fixture(params=["local", "s3"])

@@ -124,3 +124,49 @@ def test_the_loop_works_with_an_s3_store(redis_url, run_id, s3_server, hp_file):
     runs = RunStore(open_store(store, s3_server))
     assert runs.pointer(run_id, "latest")["version"] == 1
     worker.close()
+
+
+def test_continuous_actions_and_frame_stacking(redis_url, run_id, tmp_path):
+    meta = tmp_path / "model_metadata.json"
+    meta.write_text(
+        json.dumps(
+            {
+                "action_space": {"steering_angle": {"low": -20.0, "high": 20.0}, "speed": {"low": 0.5, "high": 1.5}},
+                "action_space_type": "continuous",
+            }
+        )
+    )
+    hp = tmp_path / "hp.json"
+    hp.write_text(json.dumps({"batch_size": 32, "num_epochs": 1, "num_episodes_between_training": 2, "stack_size": 2}))
+    store = str(tmp_path / "store")
+    run, files = build_run(run_id, track="Straight_track", action_space=str(meta), hyperparams=str(hp))
+    run = run.model_copy(update={"segment_steps": 16})
+    trainer = Trainer(run, TrainerOptions(redis_url, store, run_files=files))
+    trainer.start()
+    worker = RolloutWorker(WorkerOptions(run_id, redis_url, store))
+    worker.start()
+    seg = worker.collect()
+    assert seg.arrays["obs"].shape == (16, 120, 160, 2)
+    assert seg.arrays["actions"].dtype == np.float32 and seg.arrays["actions"].shape == (16, 2)
+    worker.push(seg)
+    fill(trainer, worker)
+    assert np.isfinite(list(trainer.train().values())).all()
+    assert worker.poll_policy() and worker.policy_version == 1
+    worker.close()
+
+
+def test_models_ls_lists_the_checkpoints_as_json(redis_url, run_id, tmp_path, hp_file):
+    from typer.testing import CliRunner
+
+    from racer.cli import app
+
+    store = str(tmp_path / "store")
+    trainer, worker = start(run_id, redis_url, store, hp_file)
+    fill(trainer, worker)
+    trainer.train()
+    worker.close()
+    result = CliRunner().invoke(app, ["models", "ls", "--store", store, "--json", "-"])
+    assert result.exit_code == 0, result.output
+    rows = json.loads(result.output)
+    assert [(r["run_id"], r["version"]) for r in rows] == [(run_id, 0), (run_id, 1)]
+    assert rows[1]["latest"] and rows[1]["env_steps"] == trainer.stats.env_steps and rows[0]["env_steps"] == 0
