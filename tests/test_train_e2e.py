@@ -111,3 +111,42 @@ def test_bad_reward_function_fails_before_starting_anything(tmp_path):
     assert result.returncode == 2
     assert "r.py" in result.stderr and "KeyError" in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "runs" / "bad").exists()
+
+
+def test_ctrl_c_stops_everything_and_resume_continues_the_run(tmp_path):
+    (tmp_path / "hp.json").write_text(json.dumps({**HP, "num_episodes_between_training": 4, "num_epochs": 1}))
+    cmd = [
+        sys.executable,
+        "-m",
+        "racer",
+        "train",
+        "--workers",
+        "1",
+        "--track",
+        "Straight_track",
+        "--run-id",
+        "cc",
+        "--hyperparams",
+        "hp.json",
+    ]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    runs = RunStore(open_store(str(tmp_path)))
+    deadline = time.monotonic() + 180
+    while time.monotonic() < deadline and len(runs.list_checkpoints("cc")) < 2:
+        time.sleep(1)
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 0, out
+    assert "stopping" in out
+    ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True).stdout
+    assert "--run-id cc" not in ps, "a role process outlived racer train"
+    before = runs.pointer("cc", "latest")
+    assert before["version"] >= 1
+
+    result = racer(
+        "train", "--resume", "--run-id", "cc", "--workers", "1", "--time-limit", "45s", cwd=tmp_path, timeout=240
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    after = runs.pointer("cc", "latest")
+    assert after["version"] > before["version"]
+    assert after["env_steps"] > before["env_steps"]
