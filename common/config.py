@@ -122,3 +122,5 @@ class RunConfig(_Strict):
     """A worker that has not sent a heartbeat for this long is reported silent, seconds."""
     seed: int = 0
     """Base seed: worker k seeds its env with seed + 1000·k, the trainer uses seed."""
+    keep_checkpoints: int = Field(5, ge=2)
+    """Whole checkpoints kept besides the one ``best`` names (each is ~70 MB with the default CNN and Adam state)."""

@@ -52,6 +52,11 @@ class Keys:
         return f"{self.base}:trainer"
 
     @property
+    def evaluations(self) -> str:
+        """List: a JSON summary per evaluated checkpoint, oldest first (capped with LTRIM)."""
+        return f"{self.base}:evaluations"
+
+    @property
     def training(self) -> str:
         """String key with a TTL, present while the trainer runs a PPO update (value: the version it trains from).
         Workers whose next segment would be too old to use wait instead of burning the CPU the update needs."""

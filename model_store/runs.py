@@ -129,6 +129,28 @@ class RunStore:
         self.store.put(pointer_key(run_id, "latest"), _dumps({**full, "version": version}))
         return full
 
+    def prune_checkpoints(self, run_id: str, keep_last: int) -> list[int]:
+        """Delete whole checkpoints except the newest ``keep_last`` and those a pointer names; return the deleted.
+
+        A checkpoint of DeepRacer's CNN with its Adam state is ~70 MB, so a long run keeps a window, as
+        DeepRacer-for-Cloud does. The .json goes first, so a reader never finds metadata without weights.
+        """
+        versions = sorted(self._versions(run_id))
+        pinned = {(self.pointer(run_id, name) or {}).get("version") for name in POINTERS}
+        doomed = [v for v in versions[: max(0, len(versions) - keep_last)] if v not in pinned]
+        for v in doomed:
+            self.store.delete(checkpoint_meta_key(run_id, v))
+            self.store.delete(checkpoint_key(run_id, v))
+        return doomed
+
+    def _versions(self, run_id: str) -> set[int]:
+        prefix = f"{run_prefix(run_id)}checkpoints/"
+        return {
+            int(m.group(1))
+            for info in self.store.list(prefix)
+            if (m := _CKPT_NAME.match(info.key[len(prefix) :])) and m.group(2) == "json"
+        }
+
     def checkpoint_meta(self, run_id: str, version: int) -> dict[str, Any]:
         """The metadata of a whole checkpoint; StoreKeyError if the run, the .json or the .pt is missing."""
         meta = self._read_json_or_none(checkpoint_meta_key(run_id, version))

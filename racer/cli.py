@@ -108,6 +108,12 @@ def train_cmd(
     seed: Annotated[int, typer.Option(help="Base random seed.")] = 0,
     max_policy_lag: Annotated[int, typer.Option(min=0, help="Drop segments this many versions old.")] = 0,
     segment_steps: Annotated[int, typer.Option(min=1, help="Env steps per segment sent to Redis.")] = 32,
+    evaluate: Annotated[bool, typer.Option("--eval/--no-eval", help="Run the evaluator beside the trainer.")] = True,
+    eval_every: Annotated[int, typer.Option(min=1, help="Evaluate every N-th checkpoint.")] = 1,
+    eval_episodes: Annotated[int, typer.Option(min=1, help="Evaluation starts per direction.")] = 3,
+    stop_when_robust: Annotated[
+        int | None, typer.Option(min=1, help="Stop after K consecutive checkpoints complete every evaluation lap.")
+    ] = None,
 ) -> None:
     """Train: an embedded Redis (unless --redis), the PPO trainer and N rollout workers on this machine."""
     from common.config import RunConfig
@@ -136,7 +142,18 @@ def train_cmd(
                 seed,
             )
             run = run.model_copy(update={"max_policy_lag": max_policy_lag, "segment_steps": segment_steps})
-        opts = TrainOptions(workers, redis_url, store, s3_endpoint, limit, resume)
+        opts = TrainOptions(
+            workers,
+            redis_url,
+            store,
+            s3_endpoint,
+            limit,
+            resume,
+            evaluate=evaluate,
+            eval_every=eval_every,
+            eval_episodes=eval_episodes,
+            stop_when_robust=stop_when_robust,
+        )
         console.print(f"run [bold]{rid}[/]: {workers} workers on {run.env.track}, store {store}")
         status = run_train(run, opts, files, console)
     except _user_errors() as exc:
@@ -230,6 +247,105 @@ def worker_cmd(
         fail(str(exc).splitlines()[0])
 
 
+@app.command("evaluator")
+def evaluator_cmd(
+    redis_url: RedisOpt,
+    run_id: Annotated[str, typer.Option("--run-id", envvar="RACER_RUN_ID", help="Run id.")],
+    store: StoreOpt = ".",
+    s3_endpoint: EndpointOpt = None,
+    every: Annotated[int, typer.Option(min=1, envvar="RACER_EVAL_EVERY", help="Evaluate every N-th version.")] = 1,
+    episodes: Annotated[int, typer.Option(min=1, envvar="RACER_EVAL_EPISODES", help="Starts per direction.")] = 6,
+    action_noise: Annotated[float, typer.Option(min=0, max=1, help="Action noise fraction.")] = 0.1,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
+) -> None:
+    """Run the evaluator role: robust evaluation of each new checkpoint, and the best pointer."""
+    from trainer.evaluator import EvalSettings, EvaluatorOptions, run_evaluator
+
+    _setup_logging(verbose)
+    settings = EvalSettings(episodes=episodes, action_noise=action_noise)
+    try:
+        run_evaluator(
+            EvaluatorOptions(run_id, redis_url, store, s3_endpoint, every, settings), _stop_event_on_signals()
+        )
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+
+
+@app.command("eval")
+def eval_cmd(
+    run_id: Annotated[str, typer.Option("--run-id", help="Run id.")],
+    store: StoreOpt = ".",
+    s3_endpoint: EndpointOpt = None,
+    checkpoint: Annotated[str, typer.Option(help="best, latest or a version number.")] = "best",
+    track: Annotated[list[str] | None, typer.Option(help="Track(s) to drive (default: the run's).")] = None,
+    episodes: Annotated[int, typer.Option(min=1, help="Start positions per direction and track.")] = 6,
+    both_directions: Annotated[bool, typer.Option("--both-directions/--one-direction")] = True,
+    action_noise: Annotated[float, typer.Option(min=0, max=1, help="Action noise fraction.")] = 0.1,
+    json_out: Annotated[str | None, typer.Option("--json", help="Write the result as JSON to F (- = stdout).")] = None,
+    sim_trace: Annotated[Path | None, typer.Option("--sim-trace", help="Write a DeepRacer sim-trace CSV.")] = None,
+    video: Annotated[Path | None, typer.Option("--video", help="Write an MP4 of the first trial.")] = None,
+) -> None:
+    """Evaluate a checkpoint of a run from a store: a table per trial, and the JSON summary."""
+    from racer.evaluate import run_eval
+
+    try:
+        record = run_eval(
+            run_id,
+            store,
+            s3_endpoint,
+            checkpoint,
+            track or [],
+            episodes,
+            both_directions,
+            action_noise,
+            sim_trace,
+            video,
+        )
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+    if json_out != "-":
+        table = Table("track", "direction", "start", "status", "progress %", "steps", "lap s")
+        for t in record["trials"]:
+            lap = "-" if t["lap_time_s"] is None else f"{t['lap_time_s']:.2f}"
+            table.add_row(
+                t["track"],
+                "reverse" if t["reverse"] else "forward",
+                str(t["start_index"]),
+                t["status"],
+                f"{t['progress']:.1f}",
+                str(t["steps"]),
+                lap,
+            )
+        console.print(table)
+        best = "-" if record["best_lap_s"] is None else f"{record['best_lap_s']:.2f} s"
+        console.print(
+            f"version {record['version']}: completion {100 * record['completion_rate']:.0f}%, "
+            f"mean progress {record['mean_progress']:.1f}%, best lap {best}, score {record['score']:.1f}"
+        )
+    summary = {k: v for k, v in record.items() if k != "trials"}
+    summary["trials"] = [{k: v for k, v in t.items() if k != "trajectory"} for t in record["trials"]]
+    write_json(summary, json_out)
+
+
+@app.command("plot")
+def plot_cmd(
+    run_id: Annotated[str, typer.Argument(help="Run id.")],
+    store: StoreOpt = ".",
+    s3_endpoint: EndpointOpt = None,
+    out: Annotated[Path, typer.Option(help="Folder for training.png and trajectories.png.")] = Path("."),
+) -> None:
+    """PNGs of a run: training curves with evaluation completion, and evaluation trajectories coloured by speed."""
+    from model_store import RunStore, open_store
+    from racer.plots import plot_run
+
+    try:
+        paths = plot_run(run_id, RunStore(open_store(store, s3_endpoint)), out)
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+    for p in paths:
+        console.print(f"wrote {p}")
+
+
 models_app = typer.Typer(no_args_is_help=True, help="Runs and checkpoints in a store.")
 app.add_typer(models_app, name="models")
 
@@ -241,26 +357,35 @@ def models_ls(
     run_id: Annotated[str | None, typer.Option("--run-id", help="Only this run.")] = None,
     json_out: Annotated[str | None, typer.Option("--json", help="Write the list as JSON to F (- = stdout).")] = None,
 ) -> None:
-    """List checkpoints: run, version, env steps, time, size, latest/best."""
+    """List checkpoints: run, version, env steps, time, size, evaluation figures, latest/best."""
     import datetime
 
-    from model_store import list_models, open_store
+    from racer.evaluate import models_table
 
     try:
-        rows = list_models(open_store(store, s3_endpoint), run_id)
+        rows = models_table(store, s3_endpoint, run_id)
     except _user_errors() as exc:
         fail(str(exc).splitlines()[0])
     if json_out != "-":
-        table = Table("run", "version", "env steps", "created (UTC)", "size", "")
+        table = Table(
+            "run", "version", "env steps", "created (UTC)", "size", "eval laps", "eval progress", "best lap", ""
+        )
         for r in rows:
             created = datetime.datetime.fromtimestamp(r.get("created") or 0, datetime.UTC)
             marks = " ".join(m for m in ("latest", "best") if r.get(m))
+            ev = r.get("evaluation") or {}
+            laps = "-" if not ev else f"{100 * ev['completion_rate']:.0f}%"
+            progress = "-" if not ev else f"{ev['mean_progress']:.1f}%"
+            best_lap = "-" if not ev or ev.get("best_lap_s") is None else f"{ev['best_lap_s']:.2f} s"
             table.add_row(
                 r["run_id"],
                 str(r["version"]),
                 str(r.get("env_steps")),
                 f"{created:%Y-%m-%d %H:%M:%S}",
                 f"{(r.get('size_bytes') or 0) / 1e6:.1f} MB",
+                laps,
+                progress,
+                best_lap,
                 marks,
             )
         console.print(table)

@@ -21,6 +21,7 @@ from common.config import RunConfig
 from common.keys import Keys
 from common.redis_util import connect
 from racer.embedded_redis import EmbeddedRedis
+from trainer.evaluator import robust_streak
 
 
 @dataclass
@@ -36,6 +37,14 @@ class TrainOptions:
     resume: bool = False
     trainer_threads: int = 2
     """PyTorch threads of the trainer: with max_policy_lag 0 the workers wait while it trains, so it can use two."""
+    evaluate: bool = True
+    """Run the evaluator process beside the trainer."""
+    eval_every: int = 1
+    """Evaluate every N-th policy version."""
+    eval_episodes: int = 3
+    """Start positions per direction in each evaluation."""
+    stop_when_robust: int | None = None
+    """Stop once this many consecutive evaluated checkpoints complete every evaluation lap."""
 
 
 def new_run_id() -> str:
@@ -76,14 +85,17 @@ def _stop_all(procs: list[subprocess.Popen], grace_s: float = 10.0) -> None:
             p.wait()
 
 
-def _status_line(status: dict | None, procs_alive: int, workers: int) -> str:
+def _status_line(status: dict | None, procs_alive: int, workers: int, evaluation: dict | None = None) -> str:
     if not status:
         return f"starting… ({procs_alive} of {workers} workers running)"
-    return (
+    line = (
         f"iter {status['iteration']}  v{status['policy_version']}  steps {status['env_steps']}  "
         f"{status['steps_per_s']:.0f} steps/s  progress {status['mean_progress']:.1f}%  "
         f"reward {status['mean_reward']:.1f}  workers {len(status['workers'])}/{workers}"
     )
+    if evaluation:
+        line += f"  eval v{evaluation['version']}: {100 * evaluation['completion_rate']:.0f}% laps"
+    return line
 
 
 def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], console: Console | None = None) -> dict:
@@ -111,6 +123,10 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
             _spawn(["worker", "--run-id", run.run_id, "--index", str(k), *common], logs / f"worker-{k}.log")
             for k in range(opts.workers)
         ]
+        if opts.evaluate:
+            eval_args = ["evaluator", "--run-id", run.run_id, *common, "--every", str(opts.eval_every)]
+            eval_args += ["--episodes", str(opts.eval_episodes)]
+            workers.append(_spawn(eval_args, logs / "evaluator.log"))
         try:
             return _watch(run, opts, redis_url, trainer, workers, console, logs)
         finally:
@@ -144,8 +160,13 @@ def _watch(
                         console.print(f"[yellow]worker {k} exited with code {w.returncode}; see {logs}/worker-{k}.log")
                 raw = r.get(keys.trainer_status)
                 status = json.loads(raw) if raw else status
-                alive = sum(w.poll() is None for w in workers)
-                live.update(_status_line(status, alive, len(workers)))
+                evals = [json.loads(e) for e in r.lrange(keys.evaluations, 0, -1)]
+                alive = sum(w.poll() is None for w in workers[: opts.workers])
+                live.update(_status_line(status, alive, opts.workers, evals[-1] if evals else None))
+                if opts.stop_when_robust and robust_streak(evals) >= opts.stop_when_robust:
+                    console.print(f"robust: {opts.stop_when_robust} checkpoints in a row completed every lap")
+                    status = {**(status or {}), "stopped_robust": True}
+                    break
                 time.sleep(0.25)
         except KeyboardInterrupt:
             console.print("stopping (Ctrl-C)…")

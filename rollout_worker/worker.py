@@ -26,7 +26,8 @@ from common.keys import Keys
 from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
 from common.redis_util import connect
-from model_store import RunStore, open_store
+from common.simtrace import SimTraceRecorder, simtrace_key
+from model_store import RunStore, StoreError, open_store
 from model_store.localize import localize_env
 from sim.env import RacerEnv
 
@@ -103,6 +104,7 @@ class RolloutWorker:
         self.segments = 0
         self._episode = 0
         self._workdir = tempfile.TemporaryDirectory(prefix="racer-worker-")
+        self.simtrace = SimTraceRecorder()  # DeepRacer sim-trace rows of the current iteration
 
     # --- set-up -------------------------------------------------------------------------------
     def start(self) -> None:
@@ -116,7 +118,9 @@ class RolloutWorker:
         self.model.eval()
         self._load(first)
         self.seed = self.run.seed + 1000 * self.opts.worker_index
-        self.obs = self.stack.reset(self.env.reset(seed=self.seed)[0])
+        frame, info = self.env.reset(seed=self.seed)
+        self.obs = self.stack.reset(frame)
+        self.simtrace.reset(info, self._episode)
         self._ep_reward = 0.0
 
     def _env_config(self) -> EnvConfig:
@@ -139,6 +143,7 @@ class RolloutWorker:
         raise InterruptedError("stopped while waiting for the first policy")
 
     def _load(self, pv: PolicyVersion) -> None:
+        self._upload_simtrace()  # the iteration acted with the previous version ends here
         payload, _ = self.runs.load_checkpoint(self.opts.run_id, pv.version)
         model_sd, _ = checkpoint_from_bytes(payload)
         self.model.load_state_dict(model_sd)
@@ -178,6 +183,7 @@ class RolloutWorker:
             ro.values.append(value[0])
             ro.episode_id.append(self._episode)
             frame, reward, term, trunc, info = self.env.step(action[0])
+            self.simtrace.step(action[0], info, reward, term or trunc)
             self._ep_reward += reward
             ro.rewards.append(reward)
             ro.terminated.append(term)
@@ -230,7 +236,9 @@ class RolloutWorker:
     def _new_episode(self) -> None:
         self._episode += 1
         self._ep_reward = 0.0
-        self.obs = self.stack.reset(self.env.reset()[0])
+        frame, info = self.env.reset()
+        self.obs = self.stack.reset(frame)
+        self.simtrace.reset(info, self._episode)
 
     def push(self, seg: Segment) -> None:
         """Send a segment (one atomic XADD, capped stream) and refresh the heartbeat."""
@@ -271,10 +279,26 @@ class RolloutWorker:
         return True
 
     def close(self) -> None:
-        """Release the env, the Redis connections and the temporary files."""
+        """Upload the last (partial) iteration's sim-trace; release the env, the Redis connections and the temporary
+        files."""
+        self._upload_simtrace(include_open=True)
         if hasattr(self, "env"):
             self.env.close()
         self._workdir.cleanup()
+
+    # --- DeepRacer sim-traces (common/simtrace.py) ----------------------------------------------
+    def _upload_simtrace(self, include_open: bool = False) -> None:
+        """Put the rows recorded with ``policy_version`` in ``runs/<id>/<k>/training-simtrace/<version>-iteration.csv``.
+
+        One small object per iteration (a few ms on a local store). A failed upload loses that log, not the run."""
+        text = self.simtrace.take(include_open)
+        if text is None or self.policy_version < 0:
+            return
+        key = simtrace_key(self.opts.run_id, "training", self.policy_version, self.opts.worker_index)
+        try:
+            self.runs.store.put(key, text.encode())
+        except (StoreError, OSError) as exc:
+            log.warning("could not upload sim-trace %s: %s", key, exc)
 
 
 def peak_rss_mb() -> float:

@@ -150,3 +150,38 @@ def test_ctrl_c_stops_everything_and_resume_continues_the_run(tmp_path):
     after = runs.pointer("cc", "latest")
     assert after["version"] > before["version"]
     assert after["env_steps"] > before["env_steps"]
+
+
+def test_evaluator_keeps_best_and_training_stops_when_robust(tmp_path):
+    (tmp_path / "hp.json").write_text(json.dumps(HP))
+    result = racer(
+        "train",
+        "--workers",
+        "2",
+        "--track",
+        "Straight_track",
+        "--run-id",
+        "rb",
+        "--hyperparams",
+        "hp.json",
+        "--eval-episodes",
+        "1",
+        "--stop-when-robust",
+        "2",
+        "--time-limit",
+        "6m",
+        cwd=tmp_path,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "robust: 2 checkpoints in a row completed every lap" in result.stdout
+    runs = RunStore(open_store(str(tmp_path)))
+    evaluations = sorted(p.name for p in (tmp_path / "runs" / "rb" / "evaluations").iterdir())
+    assert len(evaluations) >= 2
+    records = [json.loads(runs.read_file("rb", f"evaluations/{name}")) for name in evaluations]
+    assert records[-1]["completion_rate"] == 1.0 and records[-2]["completion_rate"] == 1.0
+    assert {t["reverse"] for t in records[-1]["trials"]} == {False, True}  # both directions
+    best = runs.pointer("rb", "best")
+    assert best is not None
+    best_score = json.loads(runs.read_file("rb", f"evaluations/{best['version']:09d}.json"))["score"]
+    assert best_score == max(r["score"] for r in records)

@@ -110,7 +110,8 @@ def test_resume_restores_version_steps_and_optimizer(redis_url, run_id, tmp_path
     assert len(again.metrics) == 1
 
 
-def test_the_loop_works_with_an_s3_store(redis_url, run_id, s3_server, hp_file):
+def test_the_loop_works_with_an_s3_store(redis_url, run_id, s3_server, hp_file, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # TensorBoard files of an S3 run go to ./runs/<id>/tensorboard
     store = f"s3://{S3_BUCKET}/it"
     run, files = build_run(run_id, track="Straight_track", hyperparams=hp_file)
     run = run.model_copy(update={"segment_steps": 16})
@@ -123,6 +124,7 @@ def test_the_loop_works_with_an_s3_store(redis_url, run_id, s3_server, hp_file):
     assert worker.poll_policy() and worker.policy_version == 1
     runs = RunStore(open_store(store, s3_server))
     assert runs.pointer(run_id, "latest")["version"] == 1
+    assert list((tmp_path / "runs" / run_id / "tensorboard").glob("events.out.tfevents.*"))
     worker.close()
 
 
@@ -170,3 +172,37 @@ def test_models_ls_lists_the_checkpoints_as_json(redis_url, run_id, tmp_path, hp
     rows = json.loads(result.output)
     assert [(r["run_id"], r["version"]) for r in rows] == [(run_id, 0), (run_id, 1)]
     assert rows[1]["latest"] and rows[1]["env_steps"] == trainer.stats.env_steps and rows[0]["env_steps"] == 0
+
+
+def test_tensorboard_scalars_and_checkpoint_pruning(redis_url, run_id, tmp_path, hp_file):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    store = str(tmp_path / "store")
+    trainer, worker = start(run_id, redis_url, store, hp_file, keep_checkpoints=2)
+    for _ in range(3):
+        fill(trainer, worker)
+        trainer.train()
+        worker.poll_policy()
+    worker.close()
+    trainer.tb.flush()
+    runs = RunStore(open_store(store))
+    assert [c["version"] for c in runs.list_checkpoints(run_id)] == [2, 3]  # the window of 2; 0 and 1 pruned
+    events = EventAccumulator(str(tmp_path / "store" / "runs" / run_id / "tensorboard"))
+    events.Reload()
+    tags = set(events.Tags()["scalars"])
+    for tag in (
+        "trainer/policy_loss",
+        "trainer/value_loss",
+        "trainer/entropy",
+        "trainer/approx_kl",
+        "trainer/clip_fraction",
+        "trainer/explained_variance",
+        "trainer/learning_rate",
+        "trainer/policy_lag",
+        "trainer/steps_per_s",
+        "episode/reward",
+        "episode/progress",
+        "episode/length",
+    ):
+        assert tag in tags, tag
+    assert len(events.Scalars("trainer/policy_loss")) == 3

@@ -51,6 +51,8 @@ class TrainerOptions:
     """Threads for PyTorch in the trainer (the workers use one each)."""
     run_files: dict[str, bytes] = field(default_factory=dict)
     """Files written into a new run: reward_function.py, model_metadata.json, hyperparameters.json."""
+    tensorboard: bool = True
+    """Write TensorBoard scalars to ``runs/<id>/tensorboard/`` (in the store folder, or ./ for an S3 store)."""
 
 
 @dataclass
@@ -85,6 +87,7 @@ class Trainer:
         self.buffer: list[Segment] = []
         self.last_id = "0-0"
         self.metrics: list[dict] = []
+        self.tb = _summary_writer(opts.store, run.run_id) if opts.tensorboard else None
         self._workdir = tempfile.TemporaryDirectory(prefix="racer-trainer-")
 
     # --- start --------------------------------------------------------------------------------
@@ -225,6 +228,7 @@ class Trainer:
         self._checkpoint()
         self._publish()
         self.redis.delete(self.keys.training)
+        self.runs.prune_checkpoints(self.run.run_id, self.run.keep_checkpoints)
         self._record(result, episodes, lags, batch, time.monotonic() - t0)
         log.info("iteration %d: version %d, %s", self.stats.iteration, self.version, result)
         return result
@@ -251,6 +255,26 @@ class Trainer:
         self.metrics.append(row)
         text = "".join(json.dumps(m) + "\n" for m in self.metrics)
         self.runs.write_file(self.run.run_id, METRICS_FILE, text)
+        self._tensorboard(row, losses, episodes)
+
+    def _tensorboard(self, row: dict, losses: dict, episodes: list[EpisodeSummary]) -> None:
+        """The same figures as TensorBoard scalars (trainer/…, and episode/… per worker episode)."""
+        if self.tb is None:
+            return
+        step = row["env_steps"]
+        for name, value in losses.items():
+            self.tb.add_scalar(f"trainer/{name}", value, step)
+        self.tb.add_scalar("trainer/learning_rate", self.optimizer.param_groups[0]["lr"], step)
+        self.tb.add_scalar("trainer/policy_lag", row["mean_policy_lag"], step)
+        self.tb.add_scalar("trainer/steps_per_s", self.status()["steps_per_s"], step)
+        self.tb.add_scalar("trainer/mean_progress", row["mean_progress"], step)
+        for e in episodes:
+            self.tb.add_scalar("episode/reward", e.reward, step)
+            self.tb.add_scalar("episode/progress", e.progress, step)
+            self.tb.add_scalar("episode/length", e.steps, step)
+            if e.lap_time_s is not None:
+                self.tb.add_scalar("episode/lap_time_s", e.lap_time_s, step)
+        self.tb.flush()
 
     def _done(self) -> bool:
         hp, recent = self.hp, self.stats.recent
@@ -295,6 +319,14 @@ class Trainer:
         return out
 
 
+def _summary_writer(store: str, run_id: str):
+    """A TensorBoard writer in the run's folder (TensorBoard writes local files: ./runs/<id>/ for an S3 store)."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    root = Path(store) if "://" not in store else Path(".")
+    return SummaryWriter(log_dir=str(root / "runs" / run_id / "tensorboard"))
+
+
 def make_batch(segments: list[Segment], gamma: float, lam: float) -> PPOBatch:
     """GAE per segment (bootstrapping from the values the workers sent), then one flat batch."""
     parts = {k: [] for k in ("obs", "actions", "logp", "adv", "ret", "values")}
@@ -337,6 +369,8 @@ def run_trainer(run: RunConfig, opts: TrainerOptions, stop: threading.Event | No
         trainer.run_forever()
         return trainer.status()
     finally:
+        if trainer.tb is not None:
+            trainer.tb.close()
         trainer._workdir.cleanup()
 
 

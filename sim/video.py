@@ -1,0 +1,173 @@
+"""Evaluation videos: what the car's camera saw, beside the car on the track from above, as an MP4.
+
+Written with OpenCV's ``VideoWriter`` (MPEG-4 part 2, fourcc ``mp4v``: the encoder opencv-python-headless ships
+with; ``avc1``/H.264 is tried only if ``mp4v`` cannot be opened, since the pip wheels usually lack an H.264 encoder).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from sim.env import RacerEnv
+from sim.physics import Pose
+from sim.texture import TextureFrame
+from sim.track import Track
+from sim.views import top_down
+
+CAMERA_ZOOM = 3
+"""The 160×120 camera image is enlarged this many times (nearest neighbour, so its pixels stay visible)."""
+FOURCCS = ("mp4v", "avc1")
+"""Codecs tried in order; the first that opens is used."""
+DEFAULT_MAX_STEPS = 3000
+"""``record_episode``'s step cap: the env's default time limit (200 s at 15 Hz)."""
+_TEXT = (cv2.FONT_HERSHEY_SIMPLEX, 0.6, 1)  # font, scale, thickness of the overlay
+
+
+def _even(n: int) -> int:
+    # Most MP4 encoders work on 2×2 chroma blocks (yuv420p): odd frame sides are refused or cropped.
+    return n + (n % 2)
+
+
+def _fit_height(img: np.ndarray, height: int) -> np.ndarray:
+    """Shrink ``img`` (keeping its aspect) if it is taller than ``height``, then pad it with black to ``height``."""
+    if img.shape[0] > height:
+        width = max(1, round(img.shape[1] * height / img.shape[0]))
+        img = cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA)
+    top = (height - img.shape[0]) // 2
+    return cv2.copyMakeBorder(img, top, height - img.shape[0] - top, 0, 0, cv2.BORDER_CONSTANT, value=(0, 0, 0))
+
+
+def _open_writer(path: Path, fps: float, size: tuple[int, int]) -> tuple[cv2.VideoWriter, str]:
+    """A VideoWriter for ``path`` with the first codec of FOURCCS that opens; OSError if none does."""
+    for fourcc in FOURCCS:
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, size)
+        if writer.isOpened():
+            return writer, fourcc
+        writer.release()
+    raise OSError(f"could not open an MP4 writer for {str(path)!r} (tried fourcc {', '.join(FOURCCS)})")
+
+
+class EpisodeVideo:
+    """An MP4 of an episode: the camera view (enlarged ×3) on the left, the car on the track from above on the right.
+
+    Both panels have the camera's height (360 px): the top-down view, ``top_width`` pixels wide, is shrunk if it is
+    taller and padded with black otherwise. Each frame is stamped with its step number (frame 0 is the reset frame).
+    Use as a context manager, or call :meth:`close` to finish the file. ``size`` is the frames' (width, height)
+    in pixels (both even: 960×360 for reinvent_base at the defaults), ``frames`` the number written so far and
+    ``fourcc`` the codec that opened.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        track: Track,
+        texture: np.ndarray,
+        frame: TextureFrame,
+        fps: float = 15,
+        top_width: int = 480,
+    ) -> None:
+        self.path = Path(path)
+        self.track = track
+        # Scale the texture to the panel once: top_down would otherwise resize the full-resolution texture (megapixels)
+        # on every frame. A frame with the scaled resolution keeps metres → pixels exact for the smaller texture.
+        scale = top_width / texture.shape[1]
+        height = max(1, round(texture.shape[0] * scale))
+        self._texture = cv2.resize(texture, (top_width, height), interpolation=cv2.INTER_AREA)
+        self._frame = TextureFrame(frame.x0, frame.y1, frame.ppm * scale, top_width, height)
+        self.top_width = top_width
+        self.height = _even(120 * CAMERA_ZOOM)
+        top_w = min(top_width, max(1, round(top_width * self.height / height)))  # after _fit_height
+        self.size = (_even(160 * CAMERA_ZOOM + top_w), self.height)  # (width, height), pixels, both even
+        self.frames = 0  # written so far
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._writer, self.fourcc = _open_writer(self.path, fps, self.size)
+
+    def compose(self, camera_gray: np.ndarray, pose: Pose, text: str = "") -> np.ndarray:
+        """One RGB frame of the video (height, width, 3) uint8: camera view | top-down view, with the overlay."""
+        cam = np.asarray(camera_gray)
+        if cam.ndim == 3:
+            cam = cam[..., 0]
+        if cam.shape != (120, 160) or cam.dtype != np.uint8:
+            raise ValueError(f"camera image must be (120, 160) or (120, 160, 1) uint8, got {cam.shape} {cam.dtype}")
+        big = cv2.resize(cam, None, fx=CAMERA_ZOOM, fy=CAMERA_ZOOM, interpolation=cv2.INTER_NEAREST)
+        left = _fit_height(cv2.cvtColor(big, cv2.COLOR_GRAY2RGB), self.height)
+        top = top_down(self.track, self._texture, self._frame, [pose], width=self.top_width)
+        out = np.concatenate([left, _fit_height(top, self.height)], axis=1)
+        out = cv2.copyMakeBorder(out, 0, 0, 0, self.size[0] - out.shape[1], cv2.BORDER_CONSTANT, value=(0, 0, 0))
+        _overlay(out, f"step {self.frames}" + (f"  {text}" if text else ""))
+        return out
+
+    def add(self, camera_gray: np.ndarray, pose: Pose, text: str = "") -> None:
+        """Append a frame: the camera image (120, 160) or (120, 160, 1) uint8 and the car's pose; ``text`` is
+        shown after the step number."""
+        if self._writer is None:
+            raise RuntimeError(f"video {str(self.path)!r} is closed")
+        rgb = self.compose(camera_gray, pose, text)
+        self._writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        self.frames += 1
+
+    def close(self) -> None:
+        """Finish the file (writes the MP4 index); safe to call twice."""
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+
+    def __enter__(self) -> EpisodeVideo:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _overlay(img: np.ndarray, text: str) -> None:
+    """Text at the top left on a dark box, so that it reads on the camera's bright and dark scenes alike."""
+    font, scale, thick = _TEXT
+    (w, h), base = cv2.getTextSize(text, font, scale, thick)
+    cv2.rectangle(img, (4, 4), (12 + w, 12 + h + base), (0, 0, 0), cv2.FILLED)
+    cv2.putText(img, text, (8, 8 + h), font, scale, (255, 255, 255), thick, cv2.LINE_AA)
+
+
+def record_episode(
+    env: RacerEnv,
+    policy_fn: Callable[[np.ndarray], Any],
+    path: str | Path,
+    max_steps: int = DEFAULT_MAX_STEPS,
+    *,
+    seed: int | None = None,
+    options: dict | None = None,
+    fps: float = 15,
+) -> dict[str, Any]:
+    """Reset ``env`` (with ``seed``/``options``), drive it with ``policy_fn(obs) -> action`` and record every frame
+    (the reset frame first) to ``path``, until the episode ends or after ``max_steps`` steps.
+
+    Returns ``{"path", "steps", "frames", "status", "progress", "reward", "fourcc"}``: ``status`` is the env's
+    episode status at the end (still ``in_progress`` if ``max_steps`` cut the episode short), ``progress`` the
+    percent of a lap driven, ``reward`` the sum of the rewards.
+    """
+    obs, info = env.reset(seed=seed, options=options)
+    steps, total, done = 0, 0.0, False
+    # After reset: the texture may have been recoloured by domain randomization for this episode.
+    with EpisodeVideo(path, env.track, env.texture, env.frame, fps=fps) as video:
+        video.add(obs, env.physics.pose, _status_text(info))
+        while not done and steps < max_steps:
+            obs, reward, terminated, truncated, info = env.step(policy_fn(obs))
+            steps, total, done = steps + 1, total + float(reward), terminated or truncated
+            video.add(obs, env.physics.pose, _status_text(info))
+    return {
+        "path": str(video.path),
+        "steps": steps,
+        "frames": video.frames,
+        "status": str(info["episode_status"]),
+        "progress": float(info["progress"]),
+        "reward": total,
+        "fourcc": video.fourcc,
+    }
+
+
+def _status_text(info: dict[str, Any]) -> str:
+    return f"progress {float(info['progress']):5.1f} %  {info['episode_status']}"

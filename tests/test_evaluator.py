@@ -1,0 +1,96 @@
+"""The evaluator: its score, the best pointer, the robust-stop streak, and a real evaluation of a checkpoint."""
+
+import json
+
+import pytest
+
+from model_store import LocalStore, RunStore
+from racer.runconfig import build_run
+from trainer.evaluator import (
+    EvalSettings,
+    Trial,
+    evaluate_checkpoint,
+    robust_streak,
+    save_evaluation,
+    score,
+    summarize,
+)
+
+
+def trial(progress, status, lap=None, reverse=False):
+    return Trial("reinvent_base", reverse, 0, progress, status, 10, lap, [[0.0, 0.0, 1.0]])
+
+
+def test_score_ranks_completion_then_progress_then_lap_time():
+    # Hand-computed: 100·completion + progress − 0.1·mean lap time.
+    assert score(1.0, 100.0, [20.0, 30.0]) == pytest.approx(100 + 100 - 2.5)
+    assert score(0.5, 75.0, [20.0]) == pytest.approx(50 + 75 - 2.0)
+    assert score(0.0, 40.0, []) == pytest.approx(40.0)
+    assert score(1.0, 100.0, [12.0]) > score(1.0, 100.0, [15.0])  # faster laps win among full completions
+    assert score(0.5, 60.0, [10.0]) > score(0.0, 99.0, [])  # a completed lap beats more progress
+
+
+def test_summarize_counts_laps_progress_and_off_track():
+    s = summarize(
+        [
+            trial(100.0, "lap_complete", 14.0),
+            trial(40.0, "off_track"),
+            trial(100.0, "lap_complete", 12.0),
+            trial(10.0, "reversed"),
+        ]
+    )
+    assert s["episodes"] == 4 and s["completion_rate"] == 0.5
+    assert s["mean_progress"] == pytest.approx(62.5)
+    assert s["lap_times_s"] == [14.0, 12.0] and s["best_lap_s"] == 12.0 and s["off_track"] == 1
+    assert s["score"] == pytest.approx(50 + 62.5 - 1.3)
+
+
+def test_robust_streak_counts_the_latest_full_completions():
+    evals = [{"completion_rate": r} for r in (1.0, 0.5, 1.0, 1.0, 1.0)]
+    assert robust_streak(evals) == 3
+    assert robust_streak(evals[:2]) == 0
+    assert robust_streak([]) == 0
+
+
+def _runs_with_checkpoints(tmp_path, versions):
+    runs = RunStore(LocalStore(tmp_path))
+    for v in versions:
+        runs.save_checkpoint("r", v, b"weights", {"env_steps": 100 * v})
+    return runs
+
+
+def test_best_pointer_moves_only_to_a_higher_score(tmp_path):
+    runs = _runs_with_checkpoints(tmp_path, [1, 2, 3])
+    rec = lambda v, s: {"run_id": "r", "version": v, "score": s, "trials": []}  # noqa: E731
+    assert save_evaluation(runs, rec(1, 50.0)) is True
+    assert runs.pointer("r", "best")["version"] == 1
+    assert save_evaluation(runs, rec(2, 40.0)) is False
+    assert runs.pointer("r", "best")["version"] == 1
+    assert save_evaluation(runs, rec(3, 150.0)) is True
+    assert runs.pointer("r", "best")["version"] == 3
+    assert json.loads(runs.read_file("r", "evaluations/000000002.json"))["score"] == 40.0  # every one is kept
+    assert runs.pointer("r", "latest")["version"] == 3
+
+
+def test_a_real_checkpoint_is_evaluated_from_spread_starts_in_both_directions(tmp_path):
+    from common.policy import action_space_spec, build_policy, checkpoint_to_bytes
+    from model_store.localize import localize_env
+    from sim.env import RacerEnv
+
+    run, files = build_run("ev", track="reinvent_base")
+    runs = RunStore(LocalStore(tmp_path / "store"))
+    for name, data in files.items():
+        runs.write_file("ev", name, data)
+    env_cfg = localize_env(run, runs, tmp_path)
+    env = RacerEnv(config=env_cfg)
+    model = build_policy((120, 160, 1), action_space_spec(env.actions), run.policy)
+    runs.save_checkpoint("ev", 0, checkpoint_to_bytes(model.state_dict()), {"env_steps": 0})
+    settings = EvalSettings(episodes=2, both_directions=True, action_noise=0.1)
+    record = evaluate_checkpoint(runs, run, env_cfg, "latest", settings)
+    assert record["episodes"] == 4 and len(record["trials"]) == 4
+    starts = {(t["reverse"], t["start_index"]) for t in record["trials"]}
+    assert starts == {(False, 0), (False, 59), (True, 0), (True, 59)}
+    assert all(len(t["trajectory"]) == t["steps"] for t in record["trials"])
+    assert 0 <= record["mean_progress"] <= 100 and record["version"] == 0
+    again = evaluate_checkpoint(runs, run, env_cfg, 0, settings)
+    assert [t["progress"] for t in again["trials"]] == [t["progress"] for t in record["trials"]]  # deterministic

@@ -1,0 +1,386 @@
+"""DeepRacer sim-traces: row format, the worker's CSVs and log lines, read back with deepracer-utils itself."""
+
+import io
+import json
+import logging
+import shutil
+import time
+
+import numpy as np
+import pytest
+import redis
+from deepracer.logs import AnalysisUtils, DeepRacerLog, LogFolderType, S3FileHandler, SimulationLogsIO
+
+from common.action_space import default_action_space
+from common.simtrace import (
+    COLUMNS,
+    SimTraceRecorder,
+    SimTraceWriter,
+    evaluation_stamp,
+    row_from_step,
+    simtrace_key,
+    simtrace_row,
+)
+from model_store import open_store
+from sim.env import RacerEnv
+from sim.track import load_track
+from tests.conftest import S3_BUCKET
+from tests.test_training_loop import fill, start
+
+# The header as SOURCES.md documents it (copied: tests do not read /work/shared).
+SOURCES_HEADER = (
+    "episode,steps,X,Y,yaw,steer,throttle,action,reward,done,all_wheels_on_track,progress,closest_waypoint,"
+    "track_len,tstamp,episode_status,pause_duration"
+)
+# Rows copied from DeepRacer's own sim-traces (the fit logs of SOURCES.md): a ROS1 console training (discrete
+# actions) and the first 17 columns of a DeepRacer-on-AWS 2026 training (continuous actions).
+DEEPRACER_ROWS = [
+    "0,1.0,3.1998969552234997,0.6831242627772308,0.18796826230461333,20.0,2.0,11,0.0,False,True,"
+    "0.7914787193255852,1,17.709159380834848,20.202,prepare,0.0",
+    "2,3.0,4.9790963260350365,0.6831373605507689,-0.19606992135098428,30.0,2.0,13,1.0,False,True,"
+    "0.8382532898445566,13,17.709159380834848,24.204,in_progress,0.0",
+    "19,26.0,4.274848193480362,0.029848905889429442,-43.15338072506675,-20.0,1.0,2,0.001,True,False,"
+    "11.860182015921922,8,17.709159380834848,56.002,off_track,0.0",
+    "0,2.0,-1.4431744274596252,-1.713296162614579,178.99982504818868,4.987387227077111,2.0,"
+    "[4.987387227077111 2.0],0.843345713469313,False,True,0.843345713469313,1,16.598090036588506,36.231,"
+    "in_progress,0.0",
+]
+# deepracer-utils' names for the columns it loads from a sim-trace folder.
+LOADED_COLUMNS = {
+    "episode",
+    "steps",
+    "x",
+    "y",
+    "yaw",
+    "steering_angle",
+    "speed",
+    "action",
+    "reward",
+    "done",
+    "on_track",
+    "progress",
+    "closest_waypoint",
+    "track_len",
+    "tstamp",
+    "episode_status",
+    "pause_duration",
+    "wall_clock",
+    "iteration",
+    "worker",
+    "unique_episode",
+}
+
+
+def _rebuild(line: str) -> list[str]:
+    """A DeepRacer row rebuilt through simtrace_row from its parsed values."""
+    v = line.split(",")
+    action = [float(a) for a in v[7][1:-1].split()] if v[7].startswith("[") else int(v[7])
+    return simtrace_row(
+        episode=int(v[0]),
+        steps=int(float(v[1])),
+        x=float(v[2]),
+        y=float(v[3]),
+        yaw_deg=float(v[4]),
+        steer_deg=float(v[5]),
+        throttle=float(v[6]),
+        action=action,
+        reward=float(v[8]),
+        done=v[9] == "True",
+        all_wheels_on_track=v[10] == "True",
+        progress=float(v[11]),
+        closest_waypoint=int(v[12]),
+        track_len=float(v[13]),
+        tstamp=float(v[14]),
+        episode_status=v[15],
+        pause_duration=float(v[16]),
+    )
+
+
+# --- format -------------------------------------------------------------------------------------------------------
+
+
+def test_header_is_the_documented_one():
+    assert ",".join(COLUMNS) == SOURCES_HEADER
+    assert SimTraceWriter().csv_text() == SOURCES_HEADER + "\n"
+
+
+@pytest.mark.parametrize("line", DEEPRACER_ROWS)
+def test_rows_are_written_character_for_character_like_deepracer(line):
+    assert ",".join(_rebuild(line)) == line
+
+
+def test_log_line_uses_the_simapp_printf_and_parses_with_deepracer_utils():
+    # The simapp: 'SIM_TRACE_LOG:%d,%d,%.4f,%.4f,%.4f,%.2f,%.2f,%s,%.4f,%s,%s,%.4f,%d,%.2f,%s,%s,%.2f'
+    rows = [_rebuild(line) for line in DEEPRACER_ROWS]
+    lines = [SimTraceWriter.log_line(r) for r in rows]
+    assert lines[0] == (
+        "SIM_TRACE_LOG:0,1,3.1999,0.6831,0.1880,20.00,2.00,11,0.0000,False,True,0.7915,1,17.71,20.202,prepare,0.00"
+    )
+    assert lines[3].split(",")[7] == "[4.987387227077111 2.0]"
+    log_text = "".join(f"2026-01-01 00:00:00,000 racer.simtrace INFO {line}\n" for line in lines)
+    df = SimulationLogsIO.convert_to_pandas(SimulationLogsIO.load_buffer(io.StringIO(log_text)))
+    assert df["episode"].tolist() == [0, 2, 19, 0] and df["steps"].tolist() == [1, 3, 26, 2]
+    assert df["action"].tolist() == [11, 13, 2, -1]  # deepracer-utils' own value for a continuous action
+    assert df["done"].tolist() == [False, False, True, False] and df["on_track"].tolist() == [True, True, False, True]
+    assert df["episode_status"].tolist() == ["prepare", "in_progress", "off_track", "in_progress"]
+    assert np.allclose(df["x"], [float(r[2]) for r in rows], atol=1e-4)
+    assert np.allclose(df["tstamp"], [float(r[14]) for r in rows])
+
+
+def test_simtrace_keys():
+    assert simtrace_key("r1", "training", 7, 2) == "runs/r1/2/training-simtrace/7-iteration.csv"
+    stamp = evaluation_stamp(0.0)
+    assert stamp == "19700101000000"
+    assert (
+        simtrace_key("r1", "evaluation", 0, evaluation=stamp)
+        == "runs/r1/evaluation-19700101000000/evaluation-simtrace/0-iteration.csv"
+    )
+    for bad in [
+        dict(run_id="a/b", kind="training", iteration=0),
+        dict(run_id="r", kind="training", iteration=-1),
+        dict(run_id="r", kind="training", iteration=0, worker="w0"),
+        dict(run_id="r", kind="evaluation", iteration=0),
+        dict(run_id="r", kind="evaluation", iteration=0, evaluation="2026"),
+        dict(run_id="r", kind="testing", iteration=0),
+    ]:
+        with pytest.raises(ValueError):
+            simtrace_key(**bad)
+
+
+def _info(steps, x, status="in_progress", command=(0.0, 1.0)):
+    params = {
+        "x": x,
+        "y": 0.0,
+        "heading": 0.0,
+        "steps": steps,
+        "progress": 10.0 * steps,
+        "all_wheels_on_track": True,
+        "waypoints": [(0.0, 0.0), (1.0, 0.0), (2.0, 0.0)],
+        "closest_waypoints": [0, 1],
+        "track_length": 2.0,
+        "sim_time": steps / 15,
+    }
+    return {"params": params, "episode_status": status, "command": command}
+
+
+def test_recorder_pairs_each_pose_with_the_action_chosen_there():
+    rec = SimTraceRecorder()
+    rec.reset(_info(0, 0.0, "prepare"), episode=4)
+    rec.step(3, _info(1, 0.1, command=(15.0, 1.0)), 0.5, False)
+    rec.step(5, _info(2, 0.7, "off_track", command=(-15.0, 0.5)), 0.25, True)
+    rows = [r.split(",") for r in rec.take().splitlines()[1:]]
+    # episode, steps, X, steer, throttle, action, reward, done, closest_waypoint, status
+    got = [(r[0], r[1], r[2], r[5], r[6], r[7], r[8], r[9], r[12], r[15]) for r in rows]
+    assert got == [
+        ("4", "1.0", "0.0", "15.0", "1.0", "3", "0.0", "False", "0", "prepare"),
+        ("4", "2.0", "0.1", "-15.0", "0.5", "5", "0.5", "False", "0", "in_progress"),
+        ("4", "3.0", "0.7", "-15.0", "0.5", "5", "0.25", "True", "1", "off_track"),  # repeats the last action
+    ]
+    assert rec.take() is None
+
+
+def test_an_episode_in_progress_stays_for_the_next_iteration():
+    rec = SimTraceRecorder()
+    rec.reset(_info(0, 0.0, "prepare"), episode=0)
+    rec.step(1, _info(1, 0.1), 1.0, True)
+    rec.reset(_info(0, 0.0, "prepare"), episode=1)
+    rec.step(2, _info(1, 0.1), 1.0, False)
+    first = rec.take()
+    assert [r.split(",")[0] for r in first.splitlines()[1:]] == ["0", "0"]
+    last = rec.take(include_open=True)  # the worker's close(): the partial episode, its last pose included
+    assert [r.split(",")[:2] for r in last.splitlines()[1:]] == [["1", "1.0"], ["1", "2.0"]]
+
+
+def test_prepare_row_from_a_real_reset_and_continuous_actions(tmp_path):
+    meta = tmp_path / "model_metadata.json"
+    space = {"steering_angle": {"low": -20.0, "high": 20.0}, "speed": {"low": 0.5, "high": 1.5}}
+    meta.write_text(json.dumps({"action_space": space, "action_space_type": "continuous"}))
+    env = RacerEnv(track="Straight_track", action_space=str(meta))
+    rec = SimTraceRecorder()
+    _, info = env.reset(seed=1)
+    rec.reset(info, episode=0)
+    _, reward, term, trunc, info2 = env.step(np.array([12.5, 0.7], np.float32))
+    rec.step(np.array([12.5, 0.7], np.float32), info2, reward, term or trunc)
+    rows = [r.split(",") for r in rec.take(include_open=True).splitlines()[1:]]
+    assert rows[0][1] == "1.0" and rows[0][8] == "0.0" and rows[0][15] == "prepare"
+    p = info["params"]
+    assert float(rows[0][2]) == p["x"] and float(rows[0][3]) == p["y"]
+    steer, speed = info2["command"]
+    assert rows[0][7] == f"[{steer!r} {speed!r}]" and float(rows[0][5]) == steer
+    assert rows[1][1] == "2.0" and float(rows[1][8]) == pytest.approx(reward)
+    assert row_from_step(info2, episode=0, action=0, reward=reward, done=False)[1] == "2.0"
+
+
+# --- a real rollout, read with deepracer-utils ---------------------------------------------------------------------
+
+
+class _Lines(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(f"{record.name} INFO {record.getMessage()}")
+
+
+@pytest.fixture(scope="module")
+def rollout(redis_server, tmp_path_factory):
+    """One trainer iteration with one worker: 0-iteration.csv on the policy switch, 1-iteration.csv on close."""
+    redis.Redis.from_url(redis_server.url).flushall()
+    tmp = tmp_path_factory.mktemp("simtrace")
+    hp = tmp / "hyperparameters.json"
+    hp.write_text(json.dumps({"batch_size": 32, "num_epochs": 1, "num_episodes_between_training": 2}))
+    store, run_id = str(tmp / "store"), "simtrace-run"
+    logger, handler = logging.getLogger("racer.simtrace"), _Lines()
+    logger.addHandler(handler)
+    old_level = logger.level
+    logger.setLevel(logging.INFO)
+    try:
+        trainer, worker = start(run_id, redis_server.url, store, str(hp))
+        fill(trainer, worker)
+        trainer.train()
+        assert worker.poll_policy() and worker.policy_version == 1
+        worker.push(worker.collect())
+        worker.close()
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(old_level)
+    return {
+        "dir": tmp / "store" / "runs" / run_id,
+        "store": store,
+        "run_id": run_id,
+        "env_steps": worker.env_steps,
+        "finished": worker._episode,
+        "lines": handler.lines,
+    }
+
+
+def _load(folder) -> tuple[DeepRacerLog, object]:
+    log = DeepRacerLog(str(folder))
+    log.load()
+    return log, log.dataframe()
+
+
+def test_the_worker_writes_one_csv_per_iteration_in_drfcs_multi_worker_layout(rollout):
+    files = sorted(p.relative_to(rollout["dir"]).as_posix() for p in rollout["dir"].rglob("*-iteration.csv"))
+    assert files == ["0/training-simtrace/0-iteration.csv", "0/training-simtrace/1-iteration.csv"]
+    first = (rollout["dir"] / files[0]).read_text().splitlines()
+    assert first[0] == SOURCES_HEADER
+    assert first[-1].split(",")[9] == "True"  # iteration 0 holds whole episodes only
+
+
+def test_deepracer_utils_loads_the_run_folder(rollout):
+    log, df = _load(rollout["dir"])
+    assert log.fh.type == LogFolderType.DRFC_MODEL_MULTIPLE_WORKERS
+    assert set(df.columns) == LOADED_COLUMNS
+    assert sorted(df["iteration"].unique()) == [0, 1] and set(df["worker"]) == {0}
+    prepares = int((df["episode_status"] == "prepare").sum())
+    assert len(df) == rollout["env_steps"] + prepares  # one row per step plus each episode's prepare row
+    assert prepares == df["episode"].nunique() and prepares in (rollout["finished"], rollout["finished"] + 1)
+
+
+def test_episodes_are_consistent(rollout):
+    _, df = _load(rollout["dir"])
+    actions = default_action_space()
+    for _, ep in df.groupby(["worker", "episode"]):
+        ep = ep.sort_values("steps")
+        assert ep["steps"].tolist() == [float(s) for s in range(1, len(ep) + 1)]
+        assert ep["episode_status"].iloc[0] == "prepare" and (ep["episode_status"].iloc[1:] != "prepare").all()
+        assert ep["reward"].iloc[0] == 0.0 and not ep["done"].iloc[:-1].any()
+        assert ep["iteration"].nunique() == 1  # an episode is never split across iterations
+        assert (np.diff(ep["tstamp"]) > 0).all()
+    finished = df.groupby(["worker", "episode"])["done"].any()
+    assert finished.sum() >= 2  # num_episodes_between_training
+    for a, steer, speed in df[["action", "steering_angle", "speed"]].itertuples(index=False):
+        assert (steer, speed) == actions.command(a)
+    assert df["progress"].between(0, 100).all()
+    track = load_track("Straight_track")
+    borders = track.waypoints[:, 2:].reshape(-1, 2)
+    margin = 0.5  # the logged point is 0.14 m ahead of the car, which may be past the border when it goes off
+    assert df["x"].between(borders[:, 0].min() - margin, borders[:, 0].max() + margin).all()
+    assert df["y"].between(borders[:, 1].min() - margin, borders[:, 1].max() + margin).all()
+    assert np.allclose(df["track_len"], track.length)
+
+
+def test_deepracer_utils_reads_our_columns_as_it_reads_deepracers(rollout, tmp_path):
+    (tmp_path / "training-simtrace").mkdir()
+    discrete = "\n".join([SOURCES_HEADER, *DEEPRACER_ROWS[:3]]) + "\n"
+    (tmp_path / "training-simtrace" / "0-iteration.csv").write_text(discrete)
+    _, theirs = _load(tmp_path)
+    _, ours = _load(rollout["dir"])
+    assert ours.dtypes.to_dict() == theirs.dtypes.to_dict()
+
+
+def test_deepracer_utils_summaries_run(rollout):
+    _, df = _load(rollout["dir"])
+    episodes = df.groupby(["iteration", "episode"]).ngroups
+    agg = AnalysisUtils.simulation_agg(df)
+    assert len(agg) == episodes
+    assert agg["progress"].between(0, 100).all() and (agg["time"] > 0).all()
+    assert len(AnalysisUtils.simulation_agg(df, secondgroup="unique_episode")) >= 1
+    sizes = df.groupby(["iteration", "episode"]).size().sort_index()
+    assert agg.set_index(["iteration", "episode"])["steps"].sort_index().tolist() == sizes.tolist()
+    log, _ = _load(rollout["dir"])
+    stability = log.stability.analyze()
+    assert len(stability) >= 1
+
+
+def test_worker_log_lines_match_the_csv_rows(rollout):
+    lines = [line for line in rollout["lines"] if "SIM_TRACE_LOG:" in line]
+    logged = SimulationLogsIO.convert_to_pandas(SimulationLogsIO.load_buffer(io.StringIO("\n".join(lines))))
+    _, df = _load(rollout["dir"])
+    df = df.sort_values(["episode", "steps"]).reset_index(drop=True)
+    logged = logged.sort_values(["episode", "steps"]).reset_index(drop=True)
+    assert len(logged) == len(df)
+    assert (logged["episode"] == df["episode"]).all() and (logged["steps"] == df["steps"]).all()
+    assert (logged["action"] == df["action"]).all() and (logged["episode_status"] == df["episode_status"]).all()
+    assert np.allclose(logged["x"], df["x"], atol=1e-4) and np.allclose(logged["progress"], df["progress"], atol=1e-4)
+
+
+def test_the_policy_switch_upload_is_small_and_fast(rollout, tmp_path):
+    # At a policy switch the worker puts one CSV of the iteration's rows: about 200 bytes a step.
+    text = (rollout["dir"] / "0" / "training-simtrace" / "0-iteration.csv").read_bytes()
+    assert len(text) < 250 * (rollout["env_steps"] + 50)
+    store = open_store(str(tmp_path))
+    t0 = time.perf_counter()
+    store.put(simtrace_key(rollout["run_id"], "training", 0, 0), text)
+    assert time.perf_counter() - t0 < 0.05
+
+
+def test_evaluation_simtrace_loads_as_an_evaluation(rollout, tmp_path):
+    folder = tmp_path / "runs" / "run"
+    shutil.copytree(rollout["dir"], folder)
+    env = RacerEnv(track="Straight_track")
+    rec, rng = SimTraceRecorder(), np.random.default_rng(0)
+    for episode in range(2):
+        _, info = env.reset(seed=episode)
+        rec.reset(info, episode)
+        done = False
+        while not done:
+            action = int(rng.integers(env.action_space.n))
+            _, reward, term, trunc, info = env.step(action)
+            done = term or trunc
+            rec.step(action, info, reward, done)
+    key = simtrace_key("run", "evaluation", 0, evaluation=evaluation_stamp(time.time()))
+    target = tmp_path / key
+    target.parent.mkdir(parents=True)
+    target.write_text(rec.take())
+    log = DeepRacerLog(str(folder))
+    log.load_evaluation_trace()
+    df = log.dataframe()
+    assert df["episode"].nunique() == 2 and (df.groupby("episode")["episode_status"].first() == "prepare").all()
+    agg = AnalysisUtils.simulation_agg(df, firstgroup="stream", is_eval=True)
+    assert len(agg) == 2
+
+
+def test_deepracer_utils_reads_the_run_from_s3(rollout, s3_server):
+    prefix = f"it-{rollout['run_id']}"
+    store = open_store(f"s3://{S3_BUCKET}/{prefix}", s3_server)
+    for path in rollout["dir"].rglob("*-iteration.csv"):
+        store.put(path.relative_to(rollout["dir"].parent.parent).as_posix(), path.read_bytes())
+    handler = S3FileHandler(bucket=S3_BUCKET, prefix=f"{prefix}/runs/{rollout['run_id']}", s3_endpoint_url=s3_server)
+    log = DeepRacerLog(filehandler=handler)
+    assert handler.type == LogFolderType.DRFC_MODEL_MULTIPLE_WORKERS
+    log.load()
+    _, local = _load(rollout["dir"])
+    assert len(log.dataframe()) == len(local)

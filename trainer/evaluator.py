@@ -1,0 +1,282 @@
+"""Robust evaluation (DeepRacer paper, Sec. 5): drive a checkpoint from spread start positions, in both
+directions, with action noise, possibly on other tracks; score it; keep the ``best`` pointer.
+
+Score (higher is better), documented in the README::
+
+    score = 100 × completion_rate + mean_progress − 0.1 × mean lap time of completed laps (s)
+
+so completing more laps always wins, then getting further, then lapping faster.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import statistics
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from common.config import EnvConfig, RunConfig
+from common.keys import Keys
+from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
+from common.protocol import PolicyVersion, ProtocolError
+from common.redis_util import connect
+from model_store import RunStore, StoreKeyError, open_store
+from model_store.localize import localize_env
+from sim.env import RacerEnv
+
+log = logging.getLogger("racer.evaluator")
+
+
+@dataclass
+class EvalSettings:
+    """How to evaluate a checkpoint."""
+
+    episodes: int = 6
+    """Start positions per direction and track, spread evenly around the lap."""
+    both_directions: bool = True
+    """Also drive every start in the reverse direction."""
+    action_noise: float = 0.1
+    """Uniform noise on the commands, as in the env's randomization (0.1 = ±3° steering, ±10 % speed)."""
+    tracks: list[str] = field(default_factory=list)
+    """Tracks to evaluate on; empty = the run's track."""
+    seed: int = 12345
+    deterministic: bool = True
+    """Act with the most likely action (DeepRacer evaluates this way); False = sample."""
+
+
+@dataclass
+class Trial:
+    """One evaluation episode."""
+
+    track: str
+    reverse: bool
+    start_index: int
+    progress: float
+    status: str
+    steps: int
+    lap_time_s: float | None
+    trajectory: list[list[float]]
+    """[x, y, commanded speed] per step, x/y at DeepRacer's point 0.14 m ahead of base_link."""
+
+
+def score(completion_rate: float, mean_progress: float, lap_times: list[float]) -> float:
+    """The documented checkpoint score (see the module docstring)."""
+    lap_penalty = 0.1 * statistics.fmean(lap_times) if lap_times else 0.0
+    return 100.0 * completion_rate + mean_progress - lap_penalty
+
+
+def summarize(trials: list[Trial]) -> dict:
+    """The figures of an evaluation, as ``racer eval`` reports them."""
+    laps = [t.lap_time_s for t in trials if t.lap_time_s is not None]
+    completion = len(laps) / len(trials) if trials else 0.0
+    progress = statistics.fmean(t.progress for t in trials) if trials else 0.0
+    return {
+        "episodes": len(trials),
+        "completion_rate": completion,
+        "mean_progress": progress,
+        "lap_times_s": laps,
+        "best_lap_s": min(laps) if laps else None,
+        "off_track": sum(t.status == "off_track" for t in trials),
+        "score": score(completion, progress, laps),
+    }
+
+
+class _Stacker:
+    def __init__(self, n: int) -> None:
+        self.n, self.frames = n, []
+
+    def reset(self, frame: np.ndarray) -> np.ndarray:
+        self.frames = [frame] * self.n
+        return self.get()
+
+    def push(self, frame: np.ndarray) -> np.ndarray:
+        self.frames = [*self.frames[1:], frame]
+        return self.get()
+
+    def get(self) -> np.ndarray:
+        return np.concatenate(self.frames, axis=-1) if self.n > 1 else self.frames[-1]
+
+
+def run_trial(
+    env: RacerEnv,
+    model: ActorCritic,
+    stack: int,
+    start: int,
+    reverse: bool,
+    seed: int,
+    deterministic: bool,
+    on_step: Callable[[np.ndarray, dict], None] | None = None,
+) -> Trial:
+    """Drive one episode from waypoint ``start`` and record it; ``on_step(frame, info)`` sees every frame."""
+    frame, info = env.reset(seed=seed, options={"start_index": start, "reverse": reverse})
+    stacker = _Stacker(stack)
+    obs = stacker.reset(frame)
+    if on_step:
+        on_step(frame, info)
+    trajectory: list[list[float]] = []
+    done = False
+    while not done:
+        action, _, _ = model.act_numpy(obs[None], deterministic=deterministic)
+        frame, _, term, trunc, info = env.step(action[0])
+        obs = stacker.push(frame)
+        p = info["params"]
+        trajectory.append([round(p["x"], 4), round(p["y"], 4), round(p["speed"], 3)])
+        if on_step:
+            on_step(frame, info)
+        done = term or trunc
+    p, status = info["params"], info["episode_status"]
+    lap = p["sim_time"] if status == "lap_complete" else None
+    return Trial(env.track.name, reverse, start, p["progress"], status, p["steps"], lap, trajectory)
+
+
+def evaluate(model: ActorCritic, env_cfg: EnvConfig, stack: int, settings: EvalSettings) -> list[Trial]:
+    """All trials of a robust evaluation: every track × direction × spread start."""
+    model.eval()
+    trials = []
+    for track in settings.tracks or [env_cfg.track]:
+        noise = env_cfg.randomization.model_copy(update={"action_noise": settings.action_noise, "random_start": False})
+        env = RacerEnv(config=env_cfg.model_copy(update={"track": track, "randomization": noise}))
+        directions = (False, True) if settings.both_directions else (False,)
+        for reverse in directions:
+            count = env.task.start_indices(reverse)
+            for i in range(settings.episodes):
+                start = round(i * count / settings.episodes) % count
+                seed = settings.seed + 1000 * i + (500 if reverse else 0)
+                trials.append(run_trial(env, model, stack, start, reverse, seed, settings.deterministic))
+        env.close()
+    return trials
+
+
+def load_model(runs: RunStore, run: RunConfig, env_cfg: EnvConfig, version: int | str) -> tuple[ActorCritic, dict]:
+    """The checkpoint's network, ready to act, and its metadata."""
+    payload, meta = runs.load_checkpoint(run.run_id, version)
+    env = RacerEnv(config=env_cfg)
+    obs_shape = (*env.observation_space.shape[:2], run.hyperparams.stack_size)
+    model = build_policy(obs_shape, action_space_spec(env.actions), run.policy)
+    env.close()
+    model.load_state_dict(checkpoint_from_bytes(payload)[0])
+    model.eval()
+    return model, meta
+
+
+def evaluation_key(version: int) -> str:
+    """Name of an evaluation's JSON inside the run folder."""
+    return f"evaluations/{version:09d}.json"
+
+
+def evaluate_checkpoint(
+    runs: RunStore, run: RunConfig, env_cfg: EnvConfig, version: int | str, settings: EvalSettings
+) -> dict:
+    """Evaluate one stored checkpoint; the full record (summary, settings and trials)."""
+    torch.manual_seed(settings.seed)
+    model, meta = load_model(runs, run, env_cfg, version)
+    trials = evaluate(model, env_cfg, run.hyperparams.stack_size, settings)
+    return {
+        "run_id": run.run_id,
+        "version": int(meta["version"]),
+        "env_steps": meta.get("env_steps"),
+        "track": env_cfg.track,
+        **summarize(trials),
+        "settings": asdict(settings),
+        "created": time.time(),
+        "trials": [asdict(t) for t in trials],
+    }
+
+
+def save_evaluation(runs: RunStore, record: dict) -> bool:
+    """Store an evaluation; move the ``best`` pointer if it scores higher than the current best. True if moved."""
+    run_id, version = record["run_id"], record["version"]
+    runs.write_file(run_id, evaluation_key(version), json.dumps(record))
+    best = runs.pointer(run_id, "best")
+    if best is not None:
+        try:
+            previous = json.loads(runs.read_file(run_id, evaluation_key(int(best["version"]))))["score"]
+        except (StoreKeyError, KeyError, ValueError):
+            previous = float("-inf")
+        if record["score"] <= previous:
+            return False
+    runs.set_pointer(run_id, "best", version)
+    return True
+
+
+@dataclass
+class EvaluatorOptions:
+    """How the evaluator process reaches the run and how often it evaluates."""
+
+    run_id: str
+    redis_url: str
+    store: str = "."
+    s3_endpoint: str | None = None
+    every: int = 1
+    """Evaluate every N-th policy version (always the newest one when it falls behind)."""
+    settings: EvalSettings = field(default_factory=EvalSettings)
+
+
+def run_evaluator(opts: EvaluatorOptions, stop: threading.Event | None = None) -> None:
+    """The evaluator process: evaluate new checkpoints as the trainer publishes them, keep ``best``, and
+    push each summary to Redis for ``racer train`` (status line, ``--stop-when-robust``)."""
+    torch.set_num_threads(1)
+    stop = stop or threading.Event()
+    r, keys = connect(opts.redis_url), Keys(opts.run_id)
+    runs = RunStore(open_store(opts.store, opts.s3_endpoint))
+    done = -1
+    with tempfile.TemporaryDirectory(prefix="racer-eval-") as tmp:
+        run = env_cfg = None
+        while not stop.is_set():
+            pv = _newest(r, keys)
+            if pv is None or pv.version <= done or pv.version % max(1, opts.every):
+                stop.wait(0.5)
+                continue
+            if run is None:
+                run = RunConfig.model_validate_json(runs.read_file(opts.run_id, "config.json"))
+                env_cfg = localize_env(run, runs, Path(tmp))
+            try:
+                record = evaluate_checkpoint(runs, run, env_cfg, pv.version, opts.settings)
+            except StoreKeyError:  # pruned while we were behind: the next newest one will do
+                done = pv.version
+                continue
+            moved = save_evaluation(runs, record)
+            summary = {
+                k: record[k]
+                for k in (
+                    "version",
+                    "env_steps",
+                    "completion_rate",
+                    "mean_progress",
+                    "best_lap_s",
+                    "off_track",
+                    "score",
+                )
+            }
+            r.rpush(keys.evaluations, json.dumps({**summary, "best": moved}))
+            r.ltrim(keys.evaluations, -1000, -1)
+            log.info("evaluated version %d: %s%s", pv.version, summary, " (new best)" if moved else "")
+            done = pv.version
+
+
+def _newest(r, keys: Keys) -> PolicyVersion | None:
+    raw = r.get(keys.policy)
+    if raw is None:
+        return None
+    try:
+        return PolicyVersion.from_json(raw)
+    except ProtocolError:
+        return None
+
+
+def robust_streak(summaries: list[dict]) -> int:
+    """How many of the most recent evaluations in a row completed every lap."""
+    streak = 0
+    for s in reversed(summaries):
+        if s.get("completion_rate", 0.0) < 1.0:
+            break
+        streak += 1
+    return streak
