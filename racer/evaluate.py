@@ -33,7 +33,35 @@ def run_eval(
     )
     with tempfile.TemporaryDirectory(prefix="racer-eval-") as tmp:
         env_cfg = localize_env(run, runs, Path(tmp))
-        return evaluate_checkpoint(runs, run, env_cfg, version, settings)
+        record = evaluate_checkpoint(runs, run, env_cfg, version, settings)
+        if video is not None:
+            record["video"] = write_video(runs, run, env_cfg, record["version"], settings, video)
+        return record
+
+
+def write_video(runs: RunStore, run: RunConfig, env_cfg, version: int, settings: EvalSettings, path: Path) -> dict:
+    """MP4 of the first evaluation trial (forward, from waypoint 0): the camera beside the car on the track."""
+    from sim.env import RacerEnv
+    from sim.video import EpisodeVideo
+    from trainer.evaluator import load_model, run_trial
+
+    model, _ = load_model(runs, run, env_cfg, version)
+    track = (settings.tracks or [env_cfg.track])[0]
+    noise = env_cfg.randomization.model_copy(update={"action_noise": settings.action_noise, "random_start": False})
+    env = RacerEnv(config=env_cfg.model_copy(update={"track": track, "randomization": noise}))
+    with EpisodeVideo(path, env.track, env.texture, env.frame) as video:
+
+        def on_step(frame, info) -> None:
+            p = info["params"]
+            video.add(
+                frame, info["pose"], f"step {p['steps']}  progress {p['progress']:.1f} %  {info['episode_status']}"
+            )
+
+        trial = run_trial(
+            env, model, run.hyperparams.stack_size, 0, False, settings.seed, settings.deterministic, on_step
+        )
+    env.close()
+    return {"path": str(path), "frames": trial.steps + 1, "status": trial.status, "progress": trial.progress}
 
 
 def models_table(store: str, s3_endpoint: str | None, run_id: str | None) -> list[dict]:

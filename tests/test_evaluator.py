@@ -94,3 +94,50 @@ def test_a_real_checkpoint_is_evaluated_from_spread_starts_in_both_directions(tm
     assert 0 <= record["mean_progress"] <= 100 and record["version"] == 0
     again = evaluate_checkpoint(runs, run, env_cfg, 0, settings)
     assert [t["progress"] for t in again["trials"]] == [t["progress"] for t in record["trials"]]  # deterministic
+
+
+def test_racer_eval_cli_prints_writes_json_and_video(tmp_path):
+    import cv2
+    from typer.testing import CliRunner
+
+    from common.policy import action_space_spec, build_policy, checkpoint_to_bytes
+    from racer.cli import app
+    from sim.env import RacerEnv
+
+    run, files = build_run("cli-ev", track="reinvent_base")
+    runs = RunStore(LocalStore(tmp_path))
+    for name, data in files.items():
+        runs.write_file("cli-ev", name, data)
+    runs.write_file("cli-ev", "config.json", run.model_dump_json())
+    actions = RacerEnv(track="reinvent_base").actions
+    model = build_policy((120, 160, 1), action_space_spec(actions), run.policy)
+    runs.save_checkpoint("cli-ev", 3, checkpoint_to_bytes(model.state_dict()), {"env_steps": 300})
+    out, video = tmp_path / "eval.json", tmp_path / "eval.mp4"
+    args = [
+        "eval",
+        "--run-id",
+        "cli-ev",
+        "--store",
+        str(tmp_path),
+        "--checkpoint",
+        "3",
+        "--episodes",
+        "1",
+        "--json",
+        str(out),
+        "--video",
+        str(video),
+    ]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "completion" in result.output and "forward" in result.output and "reverse" in result.output
+    data = json.loads(out.read_text())
+    for key in ("episodes", "completion_rate", "mean_progress", "lap_times_s", "best_lap_s"):
+        assert key in data
+    assert data["episodes"] == 2 and data["version"] == 3
+    cap = cv2.VideoCapture(str(video))
+    frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    ok, first = cap.read()
+    assert ok and frames == data["video"]["frames"] and first.std() > 10
+    missing = CliRunner().invoke(app, ["eval", "--run-id", "nope", "--store", str(tmp_path)])
+    assert missing.exit_code == 2 and "nope" in missing.output
