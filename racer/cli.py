@@ -111,6 +111,7 @@ def train_cmd(
     evaluate: Annotated[bool, typer.Option("--eval/--no-eval", help="Run the evaluator beside the trainer.")] = True,
     eval_every: Annotated[int, typer.Option(min=1, help="Evaluate every N-th checkpoint.")] = 1,
     eval_episodes: Annotated[int, typer.Option(min=1, help="Evaluation starts per direction.")] = 3,
+    eval_track: Annotated[list[str] | None, typer.Option("--eval-track", help="Evaluate on these tracks.")] = None,
     stop_when_robust: Annotated[
         int | None, typer.Option(min=1, help="Stop after K consecutive checkpoints complete every evaluation lap.")
     ] = None,
@@ -153,6 +154,7 @@ def train_cmd(
             eval_every=eval_every,
             eval_episodes=eval_episodes,
             stop_when_robust=stop_when_robust,
+            eval_tracks=eval_track or [],
         )
         console.print(f"run [bold]{rid}[/]: {workers} workers on {run.env.track}, store {store}")
         status = run_train(run, opts, files, console)
@@ -256,13 +258,14 @@ def evaluator_cmd(
     every: Annotated[int, typer.Option(min=1, envvar="RACER_EVAL_EVERY", help="Evaluate every N-th version.")] = 1,
     episodes: Annotated[int, typer.Option(min=1, envvar="RACER_EVAL_EPISODES", help="Starts per direction.")] = 6,
     action_noise: Annotated[float, typer.Option(min=0, max=1, help="Action noise fraction.")] = 0.1,
+    track: Annotated[list[str] | None, typer.Option(help="Evaluate on these tracks (default: the run's).")] = None,
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
     """Run the evaluator role: robust evaluation of each new checkpoint, and the best pointer."""
     from trainer.evaluator import EvalSettings, EvaluatorOptions, run_evaluator
 
     _setup_logging(verbose)
-    settings = EvalSettings(episodes=episodes, action_noise=action_noise)
+    settings = EvalSettings(episodes=episodes, action_noise=action_noise, tracks=track or [])
     try:
         run_evaluator(
             EvaluatorOptions(run_id, redis_url, store, s3_endpoint, every, settings), _stop_event_on_signals()

@@ -10,7 +10,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -43,6 +43,8 @@ class TrainOptions:
     """Evaluate every N-th policy version."""
     eval_episodes: int = 3
     """Start positions per direction in each evaluation."""
+    eval_tracks: list[str] = field(default_factory=list)
+    """Tracks the evaluator drives (empty = the run's track)."""
     stop_when_robust: int | None = None
     """Stop once this many consecutive evaluated checkpoints complete every evaluation lap."""
 
@@ -126,6 +128,7 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
         if opts.evaluate:
             eval_args = ["evaluator", "--run-id", run.run_id, *common, "--every", str(opts.eval_every)]
             eval_args += ["--episodes", str(opts.eval_episodes)]
+            eval_args += [arg for t in opts.eval_tracks for arg in ("--track", t)]
             workers.append(_spawn(eval_args, logs / "evaluator.log"))
         try:
             return _watch(run, opts, redis_url, trainer, workers, console, logs)
