@@ -52,6 +52,11 @@ class Keys:
         return f"{self.base}:trainer"
 
     @property
+    def worker_slots(self) -> str:
+        """Counter: a worker started without an index takes the next one (INCR), so compose workers get 0, 1, …"""
+        return f"{self.base}:worker_slots"
+
+    @property
     def evaluations(self) -> str:
         """List: a JSON summary per evaluated checkpoint, oldest first (capped with LTRIM)."""
         return f"{self.base}:evaluations"

@@ -15,11 +15,11 @@ RoboMaker logs) need the console's ``.log`` files and tarball structure; DRfC's 
 would overwrite. DRfC's multi-worker layout gives each worker its own folder, lives at the top of the model folder
 (so the run folder itself is the "model folder"), and is detected from a folder named ``0``. Its limits, which are
 deepracer-utils' and not ours: worker folders are one character (its path regex is ``/(.)/training-simtrace/``), so
-only worker indexes 0-9 load (``racer train`` numbers its workers 0..N-1; give compose workers
-``RACER_WORKER_INDEX`` 0-9), worker 0 must have written a file for the folder to be recognised, and only
-``0-iteration.csv`` is read in an evaluation folder. It reads ``model/model_metadata.json`` and
-``ip/hyperparameters.json`` for metadata; racer keeps those at the top of the run, so ``load()`` warns that they are
-missing and loads the traces anyway.
+only worker indexes 0-9 load and a folder ``10`` or above makes its whole load fail (``racer train`` numbers its
+workers 0..N-1; give compose workers ``RACER_WORKER_INDEX`` 0-9, not the random default), worker 0 must have written
+a file for the folder to be recognised, and only ``0-iteration.csv`` is read in an evaluation folder. It reads
+``model/model_metadata.json`` and ``ip/hyperparameters.json`` for metadata; racer keeps those at the top of the run,
+so ``load()`` warns that they are missing and loads the traces anyway.
 
 Rows follow DeepRacer's convention (SOURCES.md): row k is the pose the car was in when it chose action k, the reward
 computed at that pose, and the action chosen there, so the motion from row k to row k+1 is caused by the action of
@@ -27,11 +27,13 @@ row k. The first row of an episode is ``prepare`` (car at rest, steps 1, reward 
 step t+1. No action is chosen at the final pose of an episode, so its row repeats the last action.
 
 Iterations: DeepRacer's N-iteration.csv holds the episodes played with policy N. racer's workers switch policy
-between 32-step segments, in the middle of an episode, so an episode belongs to the iteration (policy version) the
+between segments, in the middle of an episode, so an episode belongs to the iteration (policy version) the
 worker was acting with when it ENDED: splitting it across two files would give deepracer-utils an episode without
 its ``prepare`` row. ``episode`` counts on across iterations per worker, as DeepRacer's does. deepracer-utils'
 ``unique_episode`` assumes every iteration has as many episodes per worker as iteration 0 (true in DeepRacer, not
-always in racer); group by ``["worker", "episode"]`` or ``["iteration", "episode"]`` when it matters.
+always in racer), so with several workers group by ``["worker", "episode"]``, which is unique. ``tstamp`` is the
+simulation time since the episode's reset (DeepRacer's clock runs on across episodes; its tools use only differences
+within an episode).
 """
 
 from __future__ import annotations

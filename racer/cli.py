@@ -236,15 +236,12 @@ def worker_cmd(
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
     """Run one rollout worker (for docker compose and workers on other machines)."""
-    import secrets
-
     from rollout_worker.worker import WorkerOptions, run_worker
 
     _setup_logging(verbose)
-    # Scaled compose workers share one set of options: a random index keeps their seeds apart.
-    k = index if index is not None else secrets.randbelow(1_000_000)
     try:
-        run_worker(WorkerOptions(run_id, redis_url, store, s3_endpoint, k, worker_id), _stop_event_on_signals())
+        # Without --index, the worker takes the next free index from Redis (scaled compose workers: 0, 1, …).
+        run_worker(WorkerOptions(run_id, redis_url, store, s3_endpoint, index, worker_id), _stop_event_on_signals())
     except _user_errors() as exc:
         fail(str(exc).splitlines()[0])
 

@@ -7,6 +7,7 @@ import tempfile
 from pathlib import Path
 
 from common.config import RunConfig
+from common.simtrace import SimTraceRecorder
 from model_store import RunStore, open_store
 from model_store.localize import localize_env
 from trainer.evaluator import EvalSettings, evaluate_checkpoint
@@ -33,7 +34,10 @@ def run_eval(
     )
     with tempfile.TemporaryDirectory(prefix="racer-eval-") as tmp:
         env_cfg = localize_env(run, runs, Path(tmp))
-        record = evaluate_checkpoint(runs, run, env_cfg, version, settings)
+        recorder = SimTraceRecorder() if sim_trace is not None else None
+        record = evaluate_checkpoint(runs, run, env_cfg, version, settings, recorder)
+        if recorder is not None:
+            Path(sim_trace).write_text(recorder.take(include_open=True) or "")
         if video is not None:
             record["video"] = write_video(runs, run, env_cfg, record["version"], settings, video)
         return record

@@ -42,8 +42,9 @@ class WorkerOptions:
     redis_url: str
     store: str = "."
     s3_endpoint: str | None = None
-    worker_index: int = 0
-    """Index k: seeds the env with run seed + 1000·k and picks worker_tracks[k % len]."""
+    worker_index: int | None = 0
+    """Index k: seeds the env with run seed + 1000·k, picks worker_tracks[k % len] and names the sim-trace folder.
+    None = take the next free index from Redis (scaled compose workers share one set of options)."""
     worker_id: str = ""
     """Name in heartbeats and segments; default ``{host}-{pid}-{index}``."""
     policy_wait_s: float = 300.0
@@ -98,6 +99,8 @@ class RolloutWorker:
         self.keys = Keys(opts.run_id)
         self.redis = connect(opts.redis_url)
         self.runs = RunStore(open_store(opts.store, opts.s3_endpoint))
+        if opts.worker_index is None:
+            opts.worker_index = int(self.redis.incr(self.keys.worker_slots)) - 1
         self.worker_id = opts.worker_id or f"{socket.gethostname()}-{os.getpid()}-{opts.worker_index}"
         self.policy_version = -1
         self.env_steps = 0
@@ -294,11 +297,11 @@ class RolloutWorker:
         text = self.simtrace.take(include_open)
         if text is None or self.policy_version < 0:
             return
-        key = simtrace_key(self.opts.run_id, "training", self.policy_version, self.opts.worker_index)
         try:
+            key = simtrace_key(self.opts.run_id, "training", self.policy_version, self.opts.worker_index)
             self.runs.store.put(key, text.encode())
-        except (StoreError, OSError) as exc:
-            log.warning("could not upload sim-trace %s: %s", key, exc)
+        except (StoreError, OSError, ValueError) as exc:
+            log.warning("could not upload the sim-trace of iteration %d: %s", self.policy_version, exc)
 
 
 def peak_rss_mb() -> float:

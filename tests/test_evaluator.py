@@ -141,3 +141,36 @@ def test_racer_eval_cli_prints_writes_json_and_video(tmp_path):
     assert ok and frames == data["video"]["frames"] and first.std() > 10
     missing = CliRunner().invoke(app, ["eval", "--run-id", "nope", "--store", str(tmp_path)])
     assert missing.exit_code == 2 and "nope" in missing.output
+
+
+def test_evaluation_sim_trace_is_read_by_deepracer_utils(tmp_path):
+    pytest.importorskip("deepracer.logs", reason="deepracer-utils is in the dev extra")
+    from deepracer.logs import DeepRacerLog
+
+    from common.policy import action_space_spec, build_policy, checkpoint_to_bytes
+    from common.simtrace import SimTraceRecorder, evaluation_stamp, simtrace_key
+    from model_store.localize import localize_env
+    from sim.env import RacerEnv
+
+    run, files = build_run("evtrace", track="reinvent_base")
+    runs = RunStore(LocalStore(tmp_path))
+    for name, data in files.items():
+        runs.write_file("evtrace", name, data)
+    env_cfg = localize_env(run, runs, tmp_path)
+    model = build_policy((120, 160, 1), action_space_spec(RacerEnv(config=env_cfg).actions), run.policy)
+    runs.save_checkpoint("evtrace", 0, checkpoint_to_bytes(model.state_dict()), {"env_steps": 0})
+    recorder = SimTraceRecorder()
+    record = evaluate_checkpoint(runs, run, env_cfg, 0, EvalSettings(episodes=2), recorder)
+    text = recorder.take(include_open=True)
+    key = simtrace_key("evtrace", "evaluation", 0, evaluation=evaluation_stamp(record["created"]))
+    runs.store.put(key, text.encode())
+    # deepracer-utils' DRfC layout needs worker 0's training folder to recognise the run folder.
+    runs.store.put(simtrace_key("evtrace", "training", 0, 0), text.encode())
+    log = DeepRacerLog(str(tmp_path / "runs" / "evtrace"))
+    log.load_evaluation_trace()
+    df = log.dataframe()
+    assert len(df) == sum(t["steps"] + 1 for t in record["trials"])  # a prepare row per episode
+    assert df["episode"].nunique() == len(record["trials"])
+    assert df.groupby("episode")["progress"].max().round(1).tolist() == [
+        round(t["progress"], 1) for t in record["trials"]
+    ]

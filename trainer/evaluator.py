@@ -28,6 +28,7 @@ from common.keys import Keys
 from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
 from common.protocol import PolicyVersion, ProtocolError
 from common.redis_util import connect
+from common.simtrace import SimTraceRecorder, evaluation_stamp, simtrace_key
 from model_store import RunStore, StoreKeyError, open_store
 from model_store.localize import localize_env
 from sim.env import RacerEnv
@@ -114,9 +115,14 @@ def run_trial(
     seed: int,
     deterministic: bool,
     on_step: Callable[[np.ndarray, dict], None] | None = None,
+    recorder: SimTraceRecorder | None = None,
+    episode: int = 0,
 ) -> Trial:
-    """Drive one episode from waypoint ``start`` and record it; ``on_step(frame, info)`` sees every frame."""
+    """Drive one episode from waypoint ``start`` and record it; ``on_step(frame, info)`` sees every frame and
+    ``recorder`` gets DeepRacer sim-trace rows (as ``episode``)."""
     frame, info = env.reset(seed=seed, options={"start_index": start, "reverse": reverse})
+    if recorder:
+        recorder.reset(info, episode)
     stacker = _Stacker(stack)
     obs = stacker.reset(frame)
     if on_step:
@@ -125,8 +131,10 @@ def run_trial(
     done = False
     while not done:
         action, _, _ = model.act_numpy(obs[None], deterministic=deterministic)
-        frame, _, term, trunc, info = env.step(action[0])
+        frame, reward, term, trunc, info = env.step(action[0])
         obs = stacker.push(frame)
+        if recorder:
+            recorder.step(action[0], info, reward, term or trunc)
         p = info["params"]
         trajectory.append([round(p["x"], 4), round(p["y"], 4), round(p["speed"], 3)])
         if on_step:
@@ -137,7 +145,9 @@ def run_trial(
     return Trial(env.track.name, reverse, start, p["progress"], status, p["steps"], lap, trajectory)
 
 
-def evaluate(model: ActorCritic, env_cfg: EnvConfig, stack: int, settings: EvalSettings) -> list[Trial]:
+def evaluate(
+    model: ActorCritic, env_cfg: EnvConfig, stack: int, settings: EvalSettings, recorder: SimTraceRecorder | None = None
+) -> list[Trial]:
     """All trials of a robust evaluation: every track × direction × spread start."""
     model.eval()
     trials = []
@@ -150,7 +160,19 @@ def evaluate(model: ActorCritic, env_cfg: EnvConfig, stack: int, settings: EvalS
             for i in range(settings.episodes):
                 start = round(i * count / settings.episodes) % count
                 seed = settings.seed + 1000 * i + (500 if reverse else 0)
-                trials.append(run_trial(env, model, stack, start, reverse, seed, settings.deterministic))
+                trials.append(
+                    run_trial(
+                        env,
+                        model,
+                        stack,
+                        start,
+                        reverse,
+                        seed,
+                        settings.deterministic,
+                        recorder=recorder,
+                        episode=len(trials),
+                    )
+                )
         env.close()
     return trials
 
@@ -173,12 +195,18 @@ def evaluation_key(version: int) -> str:
 
 
 def evaluate_checkpoint(
-    runs: RunStore, run: RunConfig, env_cfg: EnvConfig, version: int | str, settings: EvalSettings
+    runs: RunStore,
+    run: RunConfig,
+    env_cfg: EnvConfig,
+    version: int | str,
+    settings: EvalSettings,
+    recorder: SimTraceRecorder | None = None,
 ) -> dict:
-    """Evaluate one stored checkpoint; the full record (summary, settings and trials)."""
+    """Evaluate one stored checkpoint; the full record (summary, settings and trials). ``recorder`` collects the
+    DeepRacer sim-trace rows of every trial."""
     torch.manual_seed(settings.seed)
     model, meta = load_model(runs, run, env_cfg, version)
-    trials = evaluate(model, env_cfg, run.hyperparams.stack_size, settings)
+    trials = evaluate(model, env_cfg, run.hyperparams.stack_size, settings, recorder)
     return {
         "run_id": run.run_id,
         "version": int(meta["version"]),
@@ -238,12 +266,14 @@ def run_evaluator(opts: EvaluatorOptions, stop: threading.Event | None = None) -
             if run is None:
                 run = RunConfig.model_validate_json(runs.read_file(opts.run_id, "config.json"))
                 env_cfg = localize_env(run, runs, Path(tmp))
+            recorder = SimTraceRecorder()
             try:
-                record = evaluate_checkpoint(runs, run, env_cfg, pv.version, opts.settings)
+                record = evaluate_checkpoint(runs, run, env_cfg, pv.version, opts.settings, recorder)
             except StoreKeyError:  # pruned while we were behind: the next newest one will do
                 done = pv.version
                 continue
             moved = save_evaluation(runs, record)
+            _save_simtrace(runs, opts.run_id, recorder, record["created"])
             summary = {
                 k: record[k]
                 for k in (
@@ -260,6 +290,14 @@ def run_evaluator(opts: EvaluatorOptions, stop: threading.Event | None = None) -
             r.ltrim(keys.evaluations, -1000, -1)
             log.info("evaluated version %d: %s%s", pv.version, summary, " (new best)" if moved else "")
             done = pv.version
+
+
+def _save_simtrace(runs: RunStore, run_id: str, recorder: SimTraceRecorder, created: float) -> None:
+    """The evaluation's DeepRacer sim-trace, where deepracer-utils finds evaluations (DRfC's layout)."""
+    text = recorder.take(include_open=True)
+    if text:
+        key = simtrace_key(run_id, "evaluation", 0, evaluation=evaluation_stamp(created))
+        runs.store.put(key, text.encode())
 
 
 def _newest(r, keys: Keys) -> PolicyVersion | None:

@@ -96,6 +96,10 @@ class Trainer:
         if not self.opts.resume:
             for name, data in self.opts.run_files.items():
                 self.runs.write_file(self.run.run_id, name, data)
+                # deepracer-utils looks for DeepRacer's copies of these two in model/ and ip/.
+                mirror = {"model_metadata.json": "model/", "hyperparameters.json": "ip/"}.get(name)
+                if mirror:
+                    self.runs.write_file(self.run.run_id, mirror + name, data)
             self.runs.write_file(self.run.run_id, "config.json", self.run.model_dump_json(indent=2))
         self._build()
         if self.opts.resume:
