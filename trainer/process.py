@@ -250,6 +250,12 @@ class Trainer:
             "mean_progress": statistics.fmean(e.progress for e in episodes) if episodes else 0.0,
             "mean_reward": statistics.fmean(e.reward for e in episodes) if episodes else 0.0,
             "laps_completed": sum(e.status == "lap_complete" for e in episodes),
+            "mean_episode_steps": statistics.fmean(e.steps for e in episodes) if episodes else 0.0,
+            "mean_lap_time_s": statistics.fmean(laps)
+            if (laps := [e.lap_time_s for e in episodes if e.lap_time_s])
+            else None,
+            "learning_rate": self.optimizer.param_groups[0]["lr"],
+            "steps_per_s": self.status()["steps_per_s"],
             "mean_policy_lag": statistics.fmean(lags) if lags else 0.0,
             "train_s": train_s,
             "dropped": dict(self.stats.dropped),
