@@ -57,9 +57,7 @@ def write_video(runs: RunStore, run: RunConfig, env_cfg, version: int, settings:
 
         def on_step(frame, info) -> None:
             p = info["params"]
-            video.add(
-                frame, info["pose"], f"step {p['steps']}  progress {p['progress']:.1f} %  {info['episode_status']}"
-            )
+            video.add(frame, info["pose"], f"progress {p['progress']:.1f} %  {info['episode_status']}")
 
         trial = run_trial(
             env, model, run.hyperparams.stack_size, 0, False, settings.seed, settings.deterministic, on_step
