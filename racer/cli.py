@@ -37,6 +37,7 @@ def write_json(data: object, target: str | None) -> None:
 
 
 def _user_errors() -> tuple[type[Exception], ...]:
+    import redis
     from pydantic import ValidationError
 
     from common.action_space import ActionSpaceError
@@ -48,6 +49,9 @@ def _user_errors() -> tuple[type[Exception], ...]:
     from sim.track import TrackError
 
     return (
+        redis.ConnectionError,
+        redis.AuthenticationError,
+        TimeoutError,
         TrackError,
         ActionSpaceError,
         RewardFunctionError,
