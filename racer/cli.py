@@ -91,6 +91,7 @@ StoreOpt = Annotated[
 EndpointOpt = Annotated[
     str | None, typer.Option("--s3-endpoint", envvar="AWS_ENDPOINT_URL", help="S3 endpoint URL (MinIO, moto).")
 ]
+RunIdOpt = Annotated[str, typer.Option("--run-id", envvar="RACER_RUN_ID", help="Run id.")]
 RedisOpt = Annotated[str, typer.Option("--redis", envvar="RACER_REDIS_URL", help="redis://[:password@]host:port/db")]
 
 
@@ -232,7 +233,7 @@ def trainer_cmd(
 @app.command("worker")
 def worker_cmd(
     redis_url: RedisOpt,
-    run_id: Annotated[str, typer.Option("--run-id", envvar="RACER_RUN_ID", help="Run id.")],
+    run_id: RunIdOpt,
     store: StoreOpt = ".",
     s3_endpoint: EndpointOpt = None,
     index: Annotated[int | None, typer.Option(envvar="RACER_WORKER_INDEX", help="Worker index (seed, track).")] = None,
@@ -253,7 +254,7 @@ def worker_cmd(
 @app.command("evaluator")
 def evaluator_cmd(
     redis_url: RedisOpt,
-    run_id: Annotated[str, typer.Option("--run-id", envvar="RACER_RUN_ID", help="Run id.")],
+    run_id: RunIdOpt,
     store: StoreOpt = ".",
     s3_endpoint: EndpointOpt = None,
     every: Annotated[int, typer.Option(min=1, envvar="RACER_EVAL_EVERY", help="Evaluate every N-th version.")] = 1,
