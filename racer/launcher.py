@@ -125,15 +125,16 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
             _spawn(["worker", "--run-id", run.run_id, "--index", str(k), *common], logs / f"worker-{k}.log")
             for k in range(opts.workers)
         ]
+        evaluator = []
         if opts.evaluate:
             eval_args = ["evaluator", "--run-id", run.run_id, *common, "--every", str(opts.eval_every)]
             eval_args += ["--episodes", str(opts.eval_episodes)]
             eval_args += [arg for t in opts.eval_tracks for arg in ("--track", t)]
-            workers.append(_spawn(eval_args, logs / "evaluator.log"))
+            evaluator.append(_spawn(eval_args, logs / "evaluator.log"))
         try:
             return _watch(run, opts, redis_url, trainer, workers, console, logs)
         finally:
-            _stop_all([*workers, trainer])
+            _stop_all([*workers, *evaluator, trainer])
 
 
 def _watch(
@@ -164,7 +165,7 @@ def _watch(
                 raw = r.get(keys.trainer_status)
                 status = json.loads(raw) if raw else status
                 evals = [json.loads(e) for e in r.lrange(keys.evaluations, 0, -1)]
-                alive = sum(w.poll() is None for w in workers[: opts.workers])
+                alive = sum(w.poll() is None for w in workers)
                 live.update(_status_line(status, alive, opts.workers, evals[-1] if evals else None))
                 if opts.stop_when_robust and robust_streak(evals) >= opts.stop_when_robust:
                     console.print(f"robust: {opts.stop_when_robust} checkpoints in a row completed every lap")
