@@ -5,13 +5,14 @@ from __future__ import annotations
 import re
 
 PREFIX = "racer"
-_RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+"""What a run id may be: it is part of Redis keys and store paths, so no ':', '/' or '..'."""
 
 
 def check_run_id(run_id: str) -> str:
-    """Return ``run_id`` if it is a valid run id (letters, digits, ``._-``; ≤ 128), else raise ValueError."""
-    if not _RUN_ID.match(run_id):
-        raise ValueError(f"run id {run_id!r} is not valid: use letters, digits, '.', '_' or '-' (at most 128)")
+    """Return ``run_id`` if it is a valid run id (letters, digits, ``._-``; ≤ 128), else raise ValueError naming it."""
+    if not isinstance(run_id, str) or not RUN_ID.match(run_id):
+        raise ValueError(f"invalid run id {run_id!r}: use 1-128 of A-Z a-z 0-9 . _ - starting with a letter or digit")
     return run_id
 
 

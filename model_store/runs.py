@@ -18,20 +18,13 @@ import re
 import time
 from typing import Any, Literal
 
+from common.keys import RUN_ID, check_run_id
 from model_store.store import ObjectStore, StoreError, StoreKeyError, check_key
 
 PointerName = Literal["latest", "best"]
 POINTERS: tuple[str, ...] = ("latest", "best")
 
-_RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 _CKPT_NAME = re.compile(r"^(\d{9})\.(pt|json)$")
-
-
-def check_run_id(run_id: str) -> str:
-    """Return ``run_id`` if valid (``^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$``), else raise ValueError naming it."""
-    if not isinstance(run_id, str) or not _RUN_ID.match(run_id) or run_id in (".", ".."):
-        raise ValueError(f"invalid run id {run_id!r}: use 1-128 of A-Z a-z 0-9 . _ - starting with a letter or digit")
-    return run_id
 
 
 def _check_version(version: int) -> int:
@@ -206,7 +199,7 @@ class RunStore:
     def list_runs(self) -> list[str]:
         """The run ids in the store, sorted."""
         runs = {info.key.split("/")[1] for info in self.store.list("runs/") if info.key.count("/") >= 2}
-        return sorted(r for r in runs if _RUN_ID.match(r))
+        return sorted(r for r in runs if RUN_ID.match(r))
 
     def list_checkpoints(self, run_id: str) -> list[dict[str, Any]]:
         """Metadata of each whole checkpoint in version order, with ``size_bytes`` and ``latest``/``best`` flags.

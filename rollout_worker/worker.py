@@ -14,7 +14,6 @@ import socket
 import tempfile
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,7 +22,7 @@ import torch
 
 from common.config import EnvConfig, RunConfig
 from common.keys import Keys
-from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
+from common.policy import ActorCritic, FrameStack, action_space_spec, build_policy, checkpoint_from_bytes
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
 from common.redis_util import connect
 from common.simtrace import SimTraceRecorder, simtrace_key
@@ -65,29 +64,6 @@ class _Rollout:
     next_values: list = field(default_factory=list)
     episode_id: list = field(default_factory=list)
     episodes: list = field(default_factory=list)
-
-
-class FrameStack:
-    """The last ``n`` camera frames as channels, as DeepRacer's ``stack_size`` does."""
-
-    def __init__(self, n: int) -> None:
-        self.n = n
-        self.frames: deque = deque(maxlen=n)
-
-    def reset(self, frame: np.ndarray) -> np.ndarray:
-        """Fill the stack with the first frame of an episode."""
-        for _ in range(self.n):
-            self.frames.append(frame)
-        return self.get()
-
-    def push(self, frame: np.ndarray) -> np.ndarray:
-        """Add a frame and return the stacked observation."""
-        self.frames.append(frame)
-        return self.get()
-
-    def get(self) -> np.ndarray:
-        """(H, W, n) uint8, oldest frame first."""
-        return np.concatenate(list(self.frames), axis=-1) if self.n > 1 else self.frames[-1]
 
 
 class RolloutWorker:

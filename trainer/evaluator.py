@@ -23,15 +23,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from common.action_space import default_action_space, load_action_space
 from common.config import EnvConfig, RunConfig
 from common.keys import Keys
-from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
+from common.policy import ActorCritic, FrameStack, action_space_spec, build_policy, checkpoint_from_bytes
 from common.protocol import PolicyVersion, ProtocolError
 from common.redis_util import connect
 from common.simtrace import SimTraceRecorder, evaluation_stamp, simtrace_key
 from model_store import RunStore, StoreKeyError, open_store
 from model_store.localize import localize_env
-from sim.env import RacerEnv
+from sim.env import OBS_SHAPE, RacerEnv
 
 log = logging.getLogger("racer.evaluator")
 
@@ -90,22 +91,6 @@ def summarize(trials: list[Trial]) -> dict:
     }
 
 
-class _Stacker:
-    def __init__(self, n: int) -> None:
-        self.n, self.frames = n, []
-
-    def reset(self, frame: np.ndarray) -> np.ndarray:
-        self.frames = [frame] * self.n
-        return self.get()
-
-    def push(self, frame: np.ndarray) -> np.ndarray:
-        self.frames = [*self.frames[1:], frame]
-        return self.get()
-
-    def get(self) -> np.ndarray:
-        return np.concatenate(self.frames, axis=-1) if self.n > 1 else self.frames[-1]
-
-
 def run_trial(
     env: RacerEnv,
     model: ActorCritic,
@@ -123,7 +108,7 @@ def run_trial(
     frame, info = env.reset(seed=seed, options={"start_index": start, "reverse": reverse})
     if recorder:
         recorder.reset(info, episode)
-    stacker = _Stacker(stack)
+    stacker = FrameStack(stack)
     obs = stacker.reset(frame)
     if on_step:
         on_step(frame, info)
@@ -180,10 +165,10 @@ def evaluate(
 def load_model(runs: RunStore, run: RunConfig, env_cfg: EnvConfig, version: int | str) -> tuple[ActorCritic, dict]:
     """The checkpoint's network, ready to act, and its metadata."""
     payload, meta = runs.load_checkpoint(run.run_id, version)
-    env = RacerEnv(config=env_cfg)
-    obs_shape = (*env.observation_space.shape[:2], run.hyperparams.stack_size)
-    model = build_policy(obs_shape, action_space_spec(env.actions), run.policy)
-    env.close()
+    # The network needs only the action space and the frame size, not a whole world (texture, MuJoCo model).
+    actions = load_action_space(env_cfg.action_space) if env_cfg.action_space else default_action_space()
+    obs_shape = (*OBS_SHAPE[:2], run.hyperparams.stack_size)
+    model = build_policy(obs_shape, action_space_spec(actions), run.policy)
     model.load_state_dict(checkpoint_from_bytes(payload)[0])
     model.eval()
     return model, meta

@@ -64,6 +64,8 @@ from pathlib import Path
 
 import numpy as np
 
+from common.simtrace import COLUMNS
+
 log = logging.getLogger(__name__)
 
 MIN_ROWS = 16
@@ -73,25 +75,7 @@ MAX_STEP_M = 0.5
 DEEPRACER_REFERENCE_POINT_M = 0.14
 """How far ahead of base_link DeepRacer's logged X, Y lie, m."""
 
-SIMTRACE_COLUMNS = [
-    "episode",
-    "steps",
-    "X",
-    "Y",
-    "yaw",
-    "steer",
-    "throttle",
-    "action",
-    "reward",
-    "done",
-    "all_wheels_on_track",
-    "progress",
-    "closest_waypoint",
-    "track_len",
-    "tstamp",
-    "episode_status",
-    "pause_duration",
-]
+SIMTRACE_COLUMNS = COLUMNS
 """The 17 columns of a DeepRacer sim-trace, in order; 2026 logs append :data:`SIMTRACE_2026_EXTRA`."""
 SIMTRACE_2026_EXTRA = ["obstacle_crash_counter", "wall_clock"]
 PLAIN_COLUMNS = ["time_s", "steer_cmd_deg", "speed_cmd_mps", "x_m", "y_m", "heading_deg"]
