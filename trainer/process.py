@@ -255,7 +255,7 @@ class Trainer:
             if (laps := [e.lap_time_s for e in episodes if e.lap_time_s])
             else None,
             "learning_rate": self.optimizer.param_groups[0]["lr"],
-            "steps_per_s": self.status()["steps_per_s"],
+            "steps_per_s": self._steps_per_s(),
             "mean_policy_lag": statistics.fmean(lags) if lags else 0.0,
             "train_s": train_s,
             "dropped": dict(self.stats.dropped),
@@ -276,7 +276,7 @@ class Trainer:
             self.tb.add_scalar(f"trainer/{name}", value, step)
         self.tb.add_scalar("trainer/learning_rate", self.optimizer.param_groups[0]["lr"], step)
         self.tb.add_scalar("trainer/policy_lag", row["mean_policy_lag"], step)
-        self.tb.add_scalar("trainer/steps_per_s", self.status()["steps_per_s"], step)
+        self.tb.add_scalar("trainer/steps_per_s", row["steps_per_s"], step)
         self.tb.add_scalar("trainer/mean_progress", row["mean_progress"], step)
         for e in episodes:
             self.tb.add_scalar("episode/reward", e.reward, step)
@@ -292,16 +292,19 @@ class Trainer:
             return True
         return len(recent) >= 20 and statistics.fmean(e.reward for e in recent[-20:]) >= hp.term_cond_avg_score
 
+    def _steps_per_s(self) -> float:
+        elapsed = time.monotonic() - self.stats.started
+        return self.stats.env_steps / elapsed if elapsed > 0 else 0.0
+
     def status(self) -> dict:
         """Progress figures for the display and for ``racer train``."""
         recent = self.stats.recent[-20:]
-        elapsed = time.monotonic() - self.stats.started
         return {
             "iteration": self.stats.iteration,
             "policy_version": self.version,
             "env_steps": self.stats.env_steps,
             "episodes": self.stats.episodes,
-            "steps_per_s": self.stats.env_steps / elapsed if elapsed > 0 else 0.0,
+            "steps_per_s": self._steps_per_s(),
             "mean_progress": statistics.fmean(e.progress for e in recent) if recent else 0.0,
             "mean_reward": statistics.fmean(e.reward for e in recent) if recent else 0.0,
             "dropped": dict(self.stats.dropped),
