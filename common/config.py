@@ -10,6 +10,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from common.car_calibration import CarCalibration
 from common.hyperparams import Hyperparameters
 from common.policy import PolicyConfig
 
@@ -94,6 +95,9 @@ class EnvConfig(_Strict):
     """Per-call time limit of the reward function, seconds; None = none."""
     randomization: RandomizationConfig = Field(default_factory=RandomizationConfig)
     """Domain randomization of this env."""
+    car: CarCalibration = Field(default_factory=CarCalibration)
+    """The car's calibration (``racer calibrate``'s car.json): effects between the command and the wheels.
+    Held inline, so a run's config.json carries it to every worker; no effects = the car as modelled."""
 
 
 class RunConfig(_Strict):

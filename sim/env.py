@@ -85,6 +85,7 @@ class RacerEnv(gym.Env):
         mujoco_cam = cfg.camera == "mujoco"
         self.model = build_model(self.frame, self.texture if mujoco_cam else None, self.palette.sky)
         self.physics = CarPhysics(self.model)
+        self.physics.set_calibration(cfg.car)
         self.camera_spec = CameraSpec()
         if mujoco_cam:
             self.camera: GroundCamera | MujocoCamera = MujocoCamera(self.model, self.physics.data, self.camera_spec)

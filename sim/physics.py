@@ -8,6 +8,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from common.car_calibration import CarCalibration
+from sim.actuation import Actuation
 from sim.world import PHYSICS_SUBSTEPS
 
 WHEEL_RADIUS_M = 0.035
@@ -51,6 +53,15 @@ class CarPhysics:
         self._inertia = model.body_inertia.copy()
         self._height = float(model.body_pos[self._car_body, 2])
         self._pose: Pose | None = None  # cached until the state changes
+        self._actuation: Actuation | None = None
+        self._target = (0.0, 0.0)
+
+    def set_calibration(self, calibration: CarCalibration | None) -> None:
+        """Put a calibration's effects between the command and the servos (None or no effects: none)."""
+        if calibration is None or calibration.is_identity:
+            self._actuation = None
+        else:
+            self._actuation = Actuation(calibration, float(self.model.opt.timestep))
 
     def reset(self, pose: Pose) -> None:
         """Place the car at rest at ``pose`` with wheels straight."""
@@ -60,6 +71,9 @@ class CarPhysics:
         q[self._root_q + 3 : self._root_q + 7] = (math.cos(pose.yaw / 2), 0.0, 0.0, math.sin(pose.yaw / 2))
         mujoco.mj_forward(self.model, self.data)
         self._pose = None
+        self._target = (0.0, 0.0)
+        if self._actuation is not None:
+            self._actuation.reset()
 
     def set_dynamics(self, friction_scale: float = 1.0, mass_scale: float = 1.0) -> None:
         """Scale tyre friction and all body masses (domain randomization); 1.0 restores the model."""
@@ -68,13 +82,31 @@ class CarPhysics:
         self.model.body_inertia[:] = self._inertia * mass_scale
 
     def command(self, steering_deg: float, speed_mps: float) -> None:
-        """Set the servo targets: both front hinges to the steering angle, all wheels to the speed."""
+        """Command the car until the next step: both front hinges to the steering angle, all wheels to the speed
+        (through the calibration's effects, if one is set)."""
+        self._target = (steering_deg, speed_mps)
+        self._set_servos(steering_deg, speed_mps)
+
+    def _set_servos(self, steering_deg: float, speed_mps: float) -> None:
         self.data.ctrl[self._steer] = math.radians(steering_deg)
         self.data.ctrl[self._drive] = speed_mps / WHEEL_RADIUS_M
 
+    def control_vectors(self, steering_deg: np.ndarray, speed_mps: np.ndarray) -> np.ndarray:
+        """(..., nu) MuJoCo ctrl arrays for servo targets given as arrays of the same shape."""
+        ctrl = np.zeros((*np.shape(steering_deg), self.model.nu))
+        ctrl[..., self._steer] = np.radians(steering_deg)[..., None]
+        ctrl[..., self._drive] = (np.asarray(speed_mps) / WHEEL_RADIUS_M)[..., None]
+        return ctrl
+
     def step(self, substeps: int = PHYSICS_SUBSTEPS) -> None:
         """Advance the physics by one control period."""
-        mujoco.mj_step(self.model, self.data, nstep=substeps)
+        if self._actuation is None:
+            mujoco.mj_step(self.model, self.data, nstep=substeps)
+        else:
+            # The effects change the servo targets within the control period: one MuJoCo step per substep.
+            for steer, speed in zip(*self._actuation.step(*self._target, substeps), strict=True):
+                self._set_servos(steer, speed)
+                mujoco.mj_step(self.model, self.data)
         # mj_step leaves positions derived from qpos (wheels, camera) one substep stale: refresh them.
         mujoco.mj_kinematics(self.model, self.data)
         self._pose = None

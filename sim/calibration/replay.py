@@ -1,0 +1,214 @@
+"""Replay measured commands on the simulator's own MuJoCo car over short windows and measure the residual.
+
+A window starts at sample k of a measured :class:`~sim.calibration.logs.Trajectory`: the car is put at the
+measured pose with the measured speed and yaw rate (central differences of the positions around k, moving
+along its heading), its steering hinges at the angle the actuation had reached, and is then driven open loop
+by the logged commands of samples k … k+H-1 through the calibration's effects (``sim.actuation``). The
+simulated reference point and heading at samples k+1 … k+H are compared with the measured ones.
+
+Time: each row is replayed for the log's median sample period rounded to whole physics substeps (1/15 s
+for DeepRacer logs), not for its logged time step, because DeepRacer's ``tstamp`` jitters by ±20 ms while the
+distance the car covers per row does not follow it (correlation -0.02 over 4,000 steady rows of the ROS1 set).
+
+The residual of a window, per sample i = 1 … H: ``dx``, ``dy`` (m) of the reference point, ``dheading`` (deg,
+wrapped) and ``dspeed`` (m/s): the speed of the reference point over row i-1 → i (distance / period),
+simulated minus measured. Many windows run at once through ``mujoco.rollout`` (C, one thread per core).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from common.car_calibration import CarCalibration
+from sim.actuation import ActuationParams, actuate_sequence
+from sim.calibration.logs import Trajectory
+from sim.physics import WHEEL_RADIUS_M, TRACK_WIDTH_M, CarPhysics, Pose
+from sim.texture import TextureFrame
+from sim.world import build_model
+
+WINDOW_S = 1.0
+"""Length of a replay window, s."""
+
+
+@dataclass(frozen=True)
+class Windows:
+    """Replay windows cut from measured trajectories; arrays have one row per window."""
+
+    trajectories: list[Trajectory]
+    traj: np.ndarray
+    """(W,) index into ``trajectories``."""
+    start: np.ndarray
+    """(W,) sample index k where each window starts."""
+    horizon: int
+    """Samples replayed per window, H."""
+    substeps: int
+    """Physics substeps per sample."""
+
+    @property
+    def period_s(self) -> float:
+        """Replayed duration of one sample, s."""
+        return self.substeps * _substep_s()
+
+    def __len__(self) -> int:
+        return len(self.start)
+
+    def subset(self, mask_or_index: np.ndarray) -> Windows:
+        """The windows selected by a boolean mask or an index array."""
+        return Windows(self.trajectories, self.traj[mask_or_index], self.start[mask_or_index], self.horizon, self.substeps)
+
+    def episode_keys(self) -> np.ndarray:
+        """(W,) an integer per distinct (file, episode) of each window: the unit of independence."""
+        return self.traj.copy()
+
+    def commands(self) -> tuple[np.ndarray, np.ndarray]:
+        """(W, H) commanded steering (deg) and speed (m/s) over each window."""
+        steps = self.start[:, None] + np.arange(self.horizon)
+        steer = np.stack([self.trajectories[t].steer_cmd_deg[s] for t, s in zip(self.traj, steps, strict=True)])
+        speed = np.stack([self.trajectories[t].speed_cmd_mps[s] for t, s in zip(self.traj, steps, strict=True)])
+        return steer, speed
+
+    def measured(self) -> dict[str, np.ndarray]:
+        """(W, H+1) measured reference point x, y (m), heading (rad) and (W, H) row speeds (m/s)."""
+        steps = self.start[:, None] + np.arange(self.horizon + 1)
+        trajs = [self.trajectories[t] for t in self.traj]
+        x = np.stack([tr.x[s] for tr, s in zip(trajs, steps, strict=True)])
+        y = np.stack([tr.y[s] for tr, s in zip(trajs, steps, strict=True)])
+        h = np.stack([np.radians(tr.heading_deg[s]) for tr, s in zip(trajs, steps, strict=True)])
+        speed = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1)) / self.period_s
+        return {"x": x, "y": y, "heading": h, "speed": speed}
+
+
+def _substep_s() -> float:
+    from sim.world import CONTROL_HZ, PHYSICS_SUBSTEPS
+
+    return 1.0 / (CONTROL_HZ * PHYSICS_SUBSTEPS)
+
+
+def substeps_per_sample(traj: Trajectory) -> int:
+    """Physics substeps that best match the trajectory's median sample period."""
+    return max(1, round(float(np.median(np.diff(traj.t))) / _substep_s()))
+
+
+def make_windows(trajectories: list[Trajectory], stride: int | None = None, window_s: float = WINDOW_S) -> Windows:
+    """Windows of about ``window_s`` starting every ``stride`` samples (default: one window length) from sample 1.
+
+    All trajectories must share one sample period (whole substeps); windows need the samples around their
+    start for the initial speed, so they start at sample 1 and end at least one sample before the last.
+    """
+    if not trajectories:
+        raise ValueError("no trajectories to make replay windows from")
+    periods = {substeps_per_sample(t) for t in trajectories}
+    if len(periods) > 1:
+        raise ValueError(f"trajectories have different sample periods ({sorted(periods)} substeps); replay them apart")
+    substeps = periods.pop()
+    horizon = max(2, round(window_s / (substeps * _substep_s())))
+    stride = stride or horizon
+    traj, start = [], []
+    for i, tr in enumerate(trajectories):
+        ks = np.arange(1, len(tr) - horizon, stride)
+        traj.extend([i] * len(ks))
+        start.extend(ks)
+    return Windows(trajectories, np.array(traj, int), np.array(start, int), horizon, substeps)
+
+
+class Replayer:
+    """Replays windows on the simulator's car (one MuJoCo model, rolled out in C on all cores)."""
+
+    def __init__(self, nthread: int | None = None) -> None:
+        frame = TextureFrame(x0=-50.0, y1=50.0, ppm=1.0, width=100, height=100)  # a 100 m plane: no texture
+        self.model = build_model(frame)
+        self.physics = CarPhysics(self.model)
+        self.nthread = nthread or max(1, min(4, os.cpu_count() or 1))
+        self._datas = [mujoco.MjData(self.model) for _ in range(self.nthread)]
+        self._spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        nstate = mujoco.mj_stateSize(self.model, self._spec)
+        # FULLPHYSICS is [time, qpos, qvel] for this model (no activations, no mocap): qpos starts at 1.
+        assert nstate == 1 + self.model.nq + self.model.nv, "unexpected MuJoCo state layout"
+        self._root_q = 1 + self.model.jnt_qposadr[self.model.joint("car_root").id]
+        self._steer_q = [1 + self.model.jnt_qposadr[self.model.joint(f"{w}_steer").id] for w in ("fl", "fr")]
+
+    def replay(self, windows: Windows, calibration: CarCalibration | None = None) -> dict[str, np.ndarray]:
+        """Simulated (W, H+1) reference point x, y (m), heading (rad) and (W, H) row speeds (m/s)."""
+        params = ActuationParams.from_calibration(calibration or CarCalibration())
+        steer, speed = self._targets(windows, params)
+        init = np.stack([self._initial_state(windows, i, steer[i, 0]) for i in range(len(windows))])
+        ctrl = self.physics.control_vectors(steer[:, 1:], speed[:, 1:])
+        with rollout.Rollout(nthread=self.nthread) as r:
+            states, _ = r.rollout(self.model, self._datas, init, ctrl)
+        s = windows.substeps
+        qpos = states[:, s - 1 :: s, self._root_q : self._root_q + 7]
+        yaw = _yaw(qpos[..., 3:7])
+        ref_d = np.array([windows.trajectories[t].reference_point_m for t in windows.traj])[:, None]
+        x = qpos[..., 0] + ref_d * np.cos(yaw)
+        y = qpos[..., 1] + ref_d * np.sin(yaw)
+        meas0 = windows.measured()
+        x = np.concatenate([meas0["x"][:, :1], x], axis=1)
+        y = np.concatenate([meas0["y"][:, :1], y], axis=1)
+        yaw = np.concatenate([meas0["heading"][:, :1], yaw], axis=1)
+        row_speed = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1)) / windows.period_s
+        return {"x": x, "y": y, "heading": yaw, "speed": row_speed}
+
+    def _targets(self, windows: Windows, params: ActuationParams) -> tuple[np.ndarray, np.ndarray]:
+        """(W, 1 + H·substeps) servo targets: the one in force just before the window, then each substep's."""
+        s, h = windows.substeps, windows.horizon
+        per_traj = {}
+        for t in np.unique(windows.traj):
+            tr = windows.trajectories[t]
+            st, sp = actuate_sequence(params, tr.steer_cmd_deg, tr.speed_cmd_mps, s, _substep_s())
+            per_traj[t] = (np.concatenate([[0.0], st]), np.concatenate([[0.0], sp]))
+        idx = windows.start[:, None] * s + np.arange(h * s + 1)  # index 0 = the substep before the window
+        steer = np.stack([per_traj[t][0][i] for t, i in zip(windows.traj, idx, strict=True)])
+        speed = np.stack([per_traj[t][1][i] for t, i in zip(windows.traj, idx, strict=True)])
+        return steer, speed
+
+    def _initial_state(self, windows: Windows, i: int, steer_deg: float) -> np.ndarray:
+        tr, k = windows.trajectories[windows.traj[i]], int(windows.start[i])
+        pose, speed, yaw_rate = initial_motion(tr, k, windows.period_s)
+        self.physics.reset(pose)
+        data = self.physics.data
+        v_root = self.model.jnt_dofadr[self.model.joint("car_root").id]
+        data.qvel[v_root : v_root + 2] = speed * math.cos(pose.yaw), speed * math.sin(pose.yaw)
+        data.qvel[v_root + 5] = yaw_rate
+        for side, sign in (("l", 1.0), ("r", -1.0)):
+            wheel_speed = (speed - sign * yaw_rate * TRACK_WIDTH_M / 2) / WHEEL_RADIUS_M
+            for axle in ("f", "r"):
+                data.qvel[self.model.jnt_dofadr[self.model.joint(f"{axle}{side}_spin").id]] = wheel_speed
+        state = np.empty(mujoco.mj_stateSize(self.model, self._spec))
+        mujoco.mj_getState(self.model, data, state, self._spec)
+        state[self._steer_q] = math.radians(steer_deg)
+        return state
+
+
+def initial_motion(tr: Trajectory, k: int, period_s: float) -> tuple[Pose, float, float]:
+    """Base_link pose, forward speed (m/s) and yaw rate (rad/s) at sample k from the samples around it."""
+    h = math.radians(tr.heading_deg[k])
+    d = tr.reference_point_m
+    pose = Pose(tr.x[k] - d * math.cos(h), tr.y[k] - d * math.sin(h), h)
+    dh = math.remainder(math.radians(tr.heading_deg[k + 1] - tr.heading_deg[k - 1]), 2 * math.pi)
+    yaw_rate = dh / (2 * period_s)
+    v_ref = math.hypot(tr.x[k + 1] - tr.x[k - 1], tr.y[k + 1] - tr.y[k - 1]) / (2 * period_s)
+    # The reference point ahead of base_link also moves sideways when the car turns: remove that part.
+    speed = math.sqrt(max(v_ref**2 - (yaw_rate * d) ** 2, 0.0))
+    return pose, speed, yaw_rate
+
+
+def _yaw(quat: np.ndarray) -> np.ndarray:
+    w, x, y, z = np.moveaxis(quat, -1, 0)
+    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def residuals(sim: dict[str, np.ndarray], meas: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """(W, H) simulated minus measured: dx, dy (m), dheading (deg, wrapped to ±180) and dspeed (m/s)."""
+    dh = np.degrees(np.remainder(sim["heading"][:, 1:] - meas["heading"][:, 1:] + np.pi, 2 * np.pi) - np.pi)
+    return {
+        "dx": sim["x"][:, 1:] - meas["x"][:, 1:],
+        "dy": sim["y"][:, 1:] - meas["y"][:, 1:],
+        "dheading": dh,
+        "dspeed": sim["speed"] - meas["speed"],
+    }
