@@ -82,9 +82,17 @@ EFFECTS: dict[str, EffectSpec] = {
         "curvature lost with speed: the effective angle is divided by 1 + k·v² (v the wheel speed target)",
         {"k_s2pm2": ParamSpec(0.0, 0.0, 10.0, 0.1, 0.1, "k, s²/m²")},
     ),
+    "tyre_friction": EffectSpec(
+        "tyre-ground friction coefficient: how much lateral grip the car has before it slides",
+        {"mu": ParamSpec(1.0, 0.2, 3.0, 1.3, 0.2, "friction coefficient (the model's is 1.0)")},
+    ),
 }
 """The candidate effects, by name. Order of application (fixed, whatever the file's order): steering
-offset, gain and saturation, then delay, then lag, then understeer; speed gain, then delay, then lag."""
+offset, gain and saturation, then delay, then lag, then understeer; speed gain, then delay, then lag. All but
+``tyre_friction`` act between the command and the servos; ``tyre_friction`` is a property of the tyres."""
+
+
+_TYRE_EFFECTS = ("tyre_friction",)
 
 
 class CalibrationError(ValueError):
@@ -149,6 +157,11 @@ class CarCalibration(BaseModel):
     def is_identity(self) -> bool:
         """True when no effect changes anything (the uncalibrated car)."""
         return all(v == EFFECTS[e.name].params[k].identity for e in self.effects for k, v in e.params.items())
+
+    @property
+    def acts_on_commands(self) -> bool:
+        """True when an effect sits between the command and the servos (all but the tyres' properties)."""
+        return any(e.name not in _TYRE_EFFECTS for e in self.effects)
 
     @classmethod
     def from_values(cls, values: dict[str, dict[str, float]], stderr: dict[str, dict[str, float]] | None = None):

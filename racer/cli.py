@@ -41,6 +41,7 @@ def _user_errors() -> tuple[type[Exception], ...]:
     from pydantic import ValidationError
 
     from common.action_space import ActionSpaceError
+    from common.car_calibration import CalibrationError
     from common.hyperparams import HyperparametersError
     from common.redis_util import RedisUrlError
     from model_store import StoreError
@@ -54,6 +55,7 @@ def _user_errors() -> tuple[type[Exception], ...]:
         TimeoutError,
         TrackError,
         ActionSpaceError,
+        CalibrationError,
         RewardFunctionError,
         HyperparametersError,
         StoreError,
@@ -93,6 +95,9 @@ EndpointOpt = Annotated[
 ]
 RunIdOpt = Annotated[str, typer.Option("--run-id", envvar="RACER_RUN_ID", help="Run id.")]
 RedisOpt = Annotated[str, typer.Option("--redis", envvar="RACER_REDIS_URL", help="redis://[:password@]host:port/db")]
+CarCalibrationOpt = Annotated[
+    Path | None, typer.Option("--car-calibration", help="car.json from racer calibrate: the car to simulate.")
+]
 
 
 @app.command("train")
@@ -111,6 +116,7 @@ def train_cmd(
     worker_track: Annotated[list[str] | None, typer.Option("--worker-track", help="Per-worker tracks.")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the run from its latest checkpoint.")] = False,
     seed: Annotated[int, typer.Option(help="Base random seed.")] = 0,
+    car_calibration: CarCalibrationOpt = None,
     max_policy_lag: Annotated[int, typer.Option(min=0, help="Drop segments this many versions old.")] = 0,
     segment_steps: Annotated[int, typer.Option(min=1, help="Env steps per segment sent to Redis.")] = 32,
     evaluate: Annotated[bool, typer.Option("--eval/--no-eval", help="Run the evaluator beside the trainer.")] = True,
@@ -146,6 +152,7 @@ def train_cmd(
                 str(randomization) if randomization else None,
                 worker_track,
                 seed,
+                str(car_calibration) if car_calibration else None,
             )
             run = run.model_copy(update={"max_policy_lag": max_policy_lag, "segment_steps": segment_steps})
         opts = TrainOptions(
@@ -289,6 +296,9 @@ def eval_cmd(
     json_out: Annotated[str | None, typer.Option("--json", help="Write the result as JSON to F (- = stdout).")] = None,
     sim_trace: Annotated[Path | None, typer.Option("--sim-trace", help="Write a DeepRacer sim-trace CSV.")] = None,
     video: Annotated[Path | None, typer.Option("--video", help="Write an MP4 of the first trial.")] = None,
+    car_calibration: Annotated[
+        Path | None, typer.Option("--car-calibration", help="Drive this car.json instead of the run's car.")
+    ] = None,
 ) -> None:
     """Evaluate a checkpoint of a run from a store: a table per trial, and the JSON summary."""
     from racer.evaluate import run_eval
@@ -305,6 +315,7 @@ def eval_cmd(
             action_noise,
             sim_trace,
             video,
+            car_calibration,
         )
     except _user_errors() as exc:
         fail(str(exc).splitlines()[0])
@@ -330,6 +341,44 @@ def eval_cmd(
     summary = {k: v for k, v in record.items() if k != "trials"}
     summary["trials"] = [{k: v for k, v in t.items() if k != "trajectory"} for t in record["trials"]]
     write_json(summary, json_out)
+
+
+@app.command("calibrate")
+def calibrate_cmd(
+    logs: Annotated[
+        list[Path], typer.Argument(help="Measured logs: sim-trace CSVs, RoboMaker logs, plain CSVs, folders.")
+    ],
+    apply: Annotated[
+        Path | None, typer.Option("--apply", help="Score this car.json on LOGS instead of fitting.")
+    ] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="Write the fitted calibration (car.json) here.")] = None,
+    json_out: Annotated[str | None, typer.Option("--json", help="Write the report as JSON to F (- = stdout).")] = None,
+    png: Annotated[Path | None, typer.Option("--png", help="Write trajectories and residuals before/after.")] = None,
+    effects: Annotated[
+        list[str] | None, typer.Option("--effect", help="Candidate effect (repeatable; default: all of them).")
+    ] = None,
+    track: Annotated[str | None, typer.Option(help="Track the logs were driven on (for the picture).")] = None,
+    max_windows: Annotated[int, typer.Option(min=20, help="Replay windows to fit on (and to choose on).")] = 400,
+) -> None:
+    """Fit the car to measured logs (effects, values, error before/after on held-out episodes), or --apply one."""
+    from racer.calibrate import run_calibrate
+
+    try:
+        report = run_calibrate(logs, apply, out, png, effects, track, max_windows, console.print)
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+    if json_out != "-":
+        table = Table("error (1 s replay)", "before", "after", "cut")
+        for key, unit in (("position_m", "m"), ("heading_deg", "deg"), ("speed_mps", "m/s")):
+            b, a = report["error_before"][key], report["error_after"][key]
+            table.add_row(f"{key.split('_')[0]} ({unit})", f"{b:.3f}", f"{a:.3f}", f"{100 * (1 - a / b):.0f}%")
+        console.print(table)
+        for e in report["effects"]:
+            values = ", ".join(
+                f"{k} = {v:.3g} ± {e.get('stderr', {}).get(k, float('nan')):.2g}" for k, v in e["params"].items()
+            )
+            console.print(f"  {e['name']}: {values}")
+    write_json(report, json_out)
 
 
 @app.command("plot")
@@ -433,14 +482,17 @@ def bench_env_cmd(
     steps: Annotated[int, typer.Option(min=100, help="Env steps per timed run.")] = 3000,
     repeats: Annotated[int, typer.Option(min=1, help="Timed runs; the median is reported.")] = 5,
     camera: Annotated[str, typer.Option(help="Camera path: ground or mujoco.")] = "ground",
+    car_calibration: CarCalibrationOpt = None,
     json_out: Annotated[str | None, typer.Option("--json", help="Write the result as JSON to F (- = stdout).")] = None,
 ) -> None:
     """Env steps per second on one core (physics + camera + reward), and its parts."""
+    from common.car_calibration import CarCalibration, load_calibration
     from common.config import EnvConfig
     from sim.bench import bench_env
 
     try:
-        result = bench_env(EnvConfig(track=track, camera=camera), steps=steps, repeats=repeats)
+        car = load_calibration(car_calibration) if car_calibration else CarCalibration()
+        result = bench_env(EnvConfig(track=track, camera=camera, car=car), steps=steps, repeats=repeats)
     except _user_errors() as exc:
         fail(str(exc))
     table = Table("figure", "value")

@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 
 from common.action_space import default_action_space, load_action_space
+from common.car_calibration import CarCalibration, load_calibration
 from common.config import EnvConfig, RandomizationConfig, RunConfig
 from common.hyperparams import Hyperparameters, load_hyperparameters
 from common.policy import PolicyConfig, network_from_metadata
@@ -33,6 +34,7 @@ def build_run(
     randomization: str | None = None,
     worker_tracks: list[str] | None = None,
     seed: int = 0,
+    car_calibration: str | None = None,
 ) -> tuple[RunConfig, dict[str, bytes]]:
     """Validate the user's files now (before any process starts) and build the run's config and files."""
     load_track(track)
@@ -44,7 +46,8 @@ def build_run(
     actions = load_action_space(action_space) if action_space else default_action_space()
     hp = load_hyperparameters(hyperparams) if hyperparams else Hyperparameters()
     dr = RandomizationConfig.model_validate(json.loads(Path(randomization).read_text())) if randomization else None
-    env = EnvConfig(track=track, randomization=dr or RandomizationConfig())
+    car = load_calibration(car_calibration) if car_calibration else CarCalibration()
+    env = EnvConfig(track=track, randomization=dr or RandomizationConfig(), car=car)
     policy = PolicyConfig(network=network_from_metadata(actions.neural_network), stack_size=hp.stack_size)
     run = RunConfig(run_id=run_id, env=env, hyperparams=hp, policy=policy, worker_tracks=worker_tracks or [], seed=seed)
     files = {

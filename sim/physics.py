@@ -57,8 +57,12 @@ class CarPhysics:
         self._target = (0.0, 0.0)
 
     def set_calibration(self, calibration: CarCalibration | None) -> None:
-        """Put a calibration's effects between the command and the servos (None or no effects: none)."""
-        if calibration is None or calibration.is_identity:
+        """Apply a calibration (``racer calibrate``): its tyre friction, and its other effects between the
+        command and the servos. None or no effects: the car as modelled."""
+        calibration = calibration or CarCalibration()
+        self._tyre_friction[:] = calibration.value("tyre_friction", "mu")
+        self.model.geom_friction[self._tyres, 0] = self._tyre_friction
+        if calibration.is_identity or not calibration.acts_on_commands:
             self._actuation = None
         else:
             self._actuation = Actuation(calibration, float(self.model.opt.timestep))
@@ -76,7 +80,7 @@ class CarPhysics:
             self._actuation.reset()
 
     def set_dynamics(self, friction_scale: float = 1.0, mass_scale: float = 1.0) -> None:
-        """Scale tyre friction and all body masses (domain randomization); 1.0 restores the model."""
+        """Scale tyre friction and all body masses (domain randomization); 1.0 restores the model (and calibration)."""
         self.model.geom_friction[self._tyres, 0] = self._tyre_friction * friction_scale
         self.model.body_mass[:] = self._mass * mass_scale
         self.model.body_inertia[:] = self._inertia * mass_scale

@@ -10,7 +10,8 @@ The procedure (:func:`calibrate`):
    parameters jointly on the fit windows (``scipy.optimize.least_squares``), and score the result on the
    selection windows. The best candidate is kept if it cuts the held-out cost by more than
    :data:`PENALTY_PER_PARAM` of what is left per parameter it adds; otherwise selection stops.
-4. Report the chosen effects with standard errors (cluster-robust by episode: windows of one episode are not
+4. Backward check: a chosen effect that no longer pays its penalty once the others were refitted is dropped.
+5. Report the chosen effects with standard errors (cluster-robust by episode: windows of one episode are not
    independent) and the error before and after on the report windows, broken down by condition.
 
 The cost: each channel's mean squared residual (position, heading, speed) divided by the uncalibrated car's on
@@ -67,7 +68,9 @@ def conditions(windows: Windows) -> dict[str, np.ndarray]:
     return {
         "speed": np.where(speed.mean(axis=1) <= 1.25, "cmd <= 1.25 m/s", "cmd > 1.25 m/s"),
         "steering": np.select(
-            [np.abs(steer).mean(axis=1) < 5, np.abs(steer).mean(axis=1) < 15], ["|cmd| < 5°", "|cmd| 5–15°"], "|cmd| >= 15°"
+            [np.abs(steer).mean(axis=1) < 5, np.abs(steer).mean(axis=1) < 15],
+            ["|cmd| < 5°", "|cmd| 5–15°"],
+            "|cmd| >= 15°",
         ),
         "acceleration": np.select([dv > 0.2, dv < -0.2], ["accelerating", "slowing"], "steady"),
     }
@@ -108,8 +111,14 @@ class Objective:
         """Normalized residual vector: its squared norm is the cost."""
         n = res["dx"].size
         sp, sh, sv = (np.sqrt(self.scales[k] * n) for k in ("pos", "heading", "speed"))
-        return np.concatenate([(res["dx"] / sp).ravel(), (res["dy"] / sp).ravel(), (res["dheading"] / sh).ravel(),
-                               (res["dspeed"] / sv).ravel()])
+        return np.concatenate(
+            [
+                (res["dx"] / sp).ravel(),
+                (res["dy"] / sp).ravel(),
+                (res["dheading"] / sh).ravel(),
+                (res["dspeed"] / sv).ravel(),
+            ]
+        )
 
     def cost(self, cal: CarCalibration) -> float:
         """Sum over channels of mean squared residual / the uncalibrated car's (3.0 for it on the fit windows)."""
@@ -147,8 +156,10 @@ def _param_keys(effects: list[str]) -> list[tuple[str, str]]:
     return [(e, p) for e in effects for p in EFFECTS[e].params]
 
 
-def _to_calibration(keys: list[tuple[str, str]], x: np.ndarray, err: np.ndarray | None = None) -> CarCalibration:
-    values: dict[str, dict[str, float]] = {}
+def _to_calibration(
+    keys: list[tuple[str, str]], x: np.ndarray, err: np.ndarray | None, fixed: dict[str, dict[str, float]]
+) -> CarCalibration:
+    values: dict[str, dict[str, float]] = {k: dict(v) for k, v in fixed.items()}
     stderr: dict[str, dict[str, float]] = {}
     for i, (e, p) in enumerate(keys):
         spec = EFFECTS[e].params[p]
@@ -158,26 +169,44 @@ def _to_calibration(keys: list[tuple[str, str]], x: np.ndarray, err: np.ndarray 
     return CarCalibration.from_values(values, stderr if err is not None else None)
 
 
-def fit_effects(objective: Objective, effects: list[str], start: CarCalibration | None = None) -> Fit:
-    """Least-squares fit of the parameters of ``effects`` (jointly) on the objective's windows."""
-    keys = _param_keys(effects)
-    specs = [EFFECTS[e].params[p] for e, p in keys]
+def fit_effects(
+    objective: Objective, effects: list[str], start: CarCalibration | None = None, free: list[str] | None = None
+) -> Fit:
+    """Least-squares fit of the parameters of the ``free`` effects (default: all of ``effects``, jointly) on the
+    objective's windows; the others keep their values in ``start``."""
     start = start or CarCalibration()
-    x0 = np.array([start.value(e, p) if e in {f.name for f in start.effects} else s.start for (e, p), s in
-                   zip(keys, specs, strict=True)])
+    free = effects if free is None else free
+    fixed = {e.name: e.params for e in start.effects if e.name in effects and e.name not in free}
+    keys = _param_keys(free)
+    specs = [EFFECTS[e].params[p] for e, p in keys]
+    started = {e.name for e in start.effects}
+    x0 = np.array([start.value(e, p) if e in started else s.start for (e, p), s in zip(keys, specs, strict=True)])
     lo, hi = np.array([s.low for s in specs]), np.array([s.high for s in specs])
-    x0 = np.clip(x0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+    x0 = np.clip(x0, lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo))
+
+    def calibration(x: np.ndarray, err: np.ndarray | None = None) -> CarCalibration:
+        return _to_calibration(keys, x, err, fixed)
 
     def fun(x: np.ndarray) -> np.ndarray:
-        return objective.vector(objective.residual(_to_calibration(keys, x)))
+        return objective.vector(objective.residual(calibration(x)))
 
-    # Finite-difference steps of about a tenth of each parameter's typical size: smaller steps would see
-    # MuJoCo's contact solver rather than the trend.
+    # Finite-difference steps of a tenth of each parameter's typical size: much smaller steps would see
+    # MuJoCo's contact solver rather than the trend. Tolerances of 1e-3: the data do not support more digits.
     steps = np.array([0.1 * s.scale for s in specs]) / np.maximum(1.0, np.abs(x0))
-    sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=[s.scale for s in specs], diff_step=steps,
-                        max_nfev=MAX_NFEV, method="trf")
+    sol = least_squares(
+        fun,
+        x0,
+        bounds=(lo, hi),
+        x_scale=[s.scale for s in specs],
+        diff_step=steps,
+        max_nfev=MAX_NFEV,
+        method="trf",
+        ftol=1e-3,
+        xtol=1e-3,
+        gtol=1e-4,
+    )
     err = _cluster_stderr(sol.jac, sol.fun, objective.clusters())
-    return Fit(_to_calibration(keys, sol.x, err), float(2 * sol.cost), int(sol.nfev))
+    return Fit(calibration(sol.x, err), float(2 * sol.cost), int(sol.nfev))
 
 
 def _cluster_stderr(jac: np.ndarray, r: np.ndarray, clusters: np.ndarray) -> np.ndarray:
@@ -214,9 +243,17 @@ def select_effects(
     while remaining:
         tried = []
         for name in remaining:
-            fit = fit_effects(fit_obj, [*chosen, name], current)
-            tried.append({"name": name, "select_cost": sel_obj.cost(fit.calibration), "fit_cost": fit.cost,
-                          "nfev": fit.nfev, "calibration": fit.calibration})
+            # Screening: fit only the candidate's parameters, the chosen effects held at their values.
+            fit = fit_effects(fit_obj, [*chosen, name], current, free=[name])
+            tried.append(
+                {
+                    "name": name,
+                    "select_cost": sel_obj.cost(fit.calibration),
+                    "fit_cost": fit.cost,
+                    "nfev": fit.nfev,
+                    "calibration": fit.calibration,
+                }
+            )
             progress(f"  try {name:20s} held-out cost {tried[-1]['select_cost']:.3f} (now {current_cost:.3f})")
         best = min(tried, key=lambda t: t["select_cost"])
         n_params = len(EFFECTS[best["name"]].params)
@@ -226,9 +263,26 @@ def select_effects(
             break
         chosen.append(best["name"])
         remaining.remove(best["name"])
-        current, current_cost = best["calibration"], best["select_cost"]
-        progress(f"chose {best['name']}: held-out cost {current_cost:.3f}")
+        # Then all chosen effects are refitted together: a new effect changes what the others should be.
+        joint = fit_effects(fit_obj, chosen, best["calibration"])
+        current, current_cost = joint.calibration, sel_obj.cost(joint.calibration)
+        progress(f"chose {best['name']}: held-out cost {current_cost:.3f} after a joint refit")
+    current, current_cost = _prune(current, current_cost, sel_obj, progress)
     return current, rounds
+
+
+def _prune(
+    cal: CarCalibration, cost: float, sel_obj: Objective, progress: Callable[[str], None]
+) -> tuple[CarCalibration, float]:
+    """Drop chosen effects that no longer pay after the joint refits (the others may now explain what they did)."""
+    for effect in list(cal.effects):
+        without = CarCalibration(effects=[e for e in cal.effects if e.name != effect.name])
+        cost_without = sel_obj.cost(without)
+        if cost < cost_without * (1 - PENALTY_PER_PARAM * len(effect.params)):
+            continue
+        progress(f"dropped {effect.name}: held-out cost {cost_without:.3f} without it ({cost:.3f} with)")
+        cal, cost = without, cost_without
+    return cal, cost
 
 
 def _public(tried: dict) -> dict:
@@ -297,8 +351,10 @@ def score(calibration: CarCalibration, trajectories: list[Trajectory], replayer:
         "breakdown_before": breakdown(res_b, windows),
         "breakdown_after": breakdown(res_a, windows),
     }
-    report["reduction"] = {k: _reduction(report["error_before"][k], report["error_after"][k]) for k in
-                           ("position_m", "heading_deg", "speed_mps")}
+    report["reduction"] = {
+        k: _reduction(report["error_before"][k], report["error_after"][k])
+        for k in ("position_m", "heading_deg", "speed_mps")
+    }
     return Result(calibration, report, windows, {"measured": meas, "before": before, "after": after})
 
 
@@ -319,18 +375,22 @@ def calibrate(
         raise ValueError(f"need at least 4 usable episodes to fit, choose and report apart; got {len(trajectories)}")
     replayer = Replayer()
     fit_w = spread(make_windows(parts["fit"], stride=5), max_windows)
-    sel_w = spread(make_windows(parts["select"]), max_windows)
+    sel_w = spread(make_windows(parts["select"], stride=5), max_windows)
     scales = channel_scales(residuals(replayer.replay(fit_w), fit_w.measured()))
     progress(f"fit on {len(fit_w)} windows, choose on {len(sel_w)}; uncalibrated fit cost 3.000")
-    cal, rounds = select_effects(Objective(replayer, fit_w, scales), Objective(replayer, sel_w, scales),
-                                 candidates, progress)
+    cal, rounds = select_effects(
+        Objective(replayer, fit_w, scales), Objective(replayer, sel_w, scales), candidates, progress
+    )
     result = score(cal, parts["report"], replayer)
-    result.report.update({
-        "fit_on": sources(parts["fit"]),
-        "selected_on": sources(parts["select"]),
-        "selection": [{"cost_before": round(r.cost_before, 5), "chosen": r.chosen, "candidates": r.candidates}
-                      for r in rounds],
-        "windows_fit": len(fit_w),
-        "windows_selected_on": len(sel_w),
-    })
+    result.report.update(
+        {
+            "fit_on": sources(parts["fit"]),
+            "selected_on": sources(parts["select"]),
+            "selection": [
+                {"cost_before": round(r.cost_before, 5), "chosen": r.chosen, "candidates": r.candidates} for r in rounds
+            ],
+            "windows_fit": len(fit_w),
+            "windows_selected_on": len(sel_w),
+        }
+    )
     return result

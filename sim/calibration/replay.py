@@ -28,7 +28,7 @@ from mujoco import rollout
 from common.car_calibration import CarCalibration
 from sim.actuation import ActuationParams, actuate_sequence
 from sim.calibration.logs import Trajectory
-from sim.physics import WHEEL_RADIUS_M, TRACK_WIDTH_M, CarPhysics, Pose
+from sim.physics import TRACK_WIDTH_M, WHEEL_RADIUS_M, CarPhysics, Pose
 from sim.texture import TextureFrame
 from sim.world import build_model
 
@@ -60,7 +60,9 @@ class Windows:
 
     def subset(self, mask_or_index: np.ndarray) -> Windows:
         """The windows selected by a boolean mask or an index array."""
-        return Windows(self.trajectories, self.traj[mask_or_index], self.start[mask_or_index], self.horizon, self.substeps)
+        return Windows(
+            self.trajectories, self.traj[mask_or_index], self.start[mask_or_index], self.horizon, self.substeps
+        )
 
     def episode_keys(self) -> np.ndarray:
         """(W,) an integer per distinct (file, episode) of each window: the unit of independence."""
@@ -135,7 +137,9 @@ class Replayer:
 
     def replay(self, windows: Windows, calibration: CarCalibration | None = None) -> dict[str, np.ndarray]:
         """Simulated (W, H+1) reference point x, y (m), heading (rad) and (W, H) row speeds (m/s)."""
-        params = ActuationParams.from_calibration(calibration or CarCalibration())
+        calibration = calibration or CarCalibration()
+        self.physics.set_calibration(calibration)  # the tyres' friction, on the model the rollout uses
+        params = ActuationParams.from_calibration(calibration)
         steer, speed = self._targets(windows, params)
         init = np.stack([self._initial_state(windows, i, steer[i, 0]) for i in range(len(windows))])
         ctrl = self.physics.control_vectors(steer[:, 1:], speed[:, 1:])
