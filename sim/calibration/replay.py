@@ -1,10 +1,10 @@
 """Replay measured commands on the simulator's own MuJoCo car over short windows and measure the residual.
 
 A window starts at sample k of a measured :class:`~sim.calibration.logs.Trajectory`: the car is put at the
-measured pose with the measured speed and yaw rate (central differences of the positions around k, moving
-along its heading), its steering hinges at the angle the actuation had reached, and is then driven open loop
-by the logged commands of samples k … k+H-1 through the calibration's effects (``sim.actuation``). The
-simulated reference point and heading at samples k+1 … k+H are compared with the measured ones.
+measured pose with the measured velocity and yaw rate (central differences of the positions around k), its
+steering hinges at the angle the actuation had reached, and is then driven open loop by the logged commands
+of samples k … k+H-1 through the calibration's effects (``sim.actuation``). The simulated reference point and
+heading at samples k+1 … k+H are compared with the measured ones.
 
 Time: each row is replayed for the log's median sample period rounded to whole physics substeps (1/15 s
 for DeepRacer logs), not for its logged time step, because DeepRacer's ``tstamp`` jitters by ±20 ms while the
@@ -141,7 +141,7 @@ class Replayer:
         self.physics.set_calibration(calibration)  # the tyres' friction, on the model the rollout uses
         params = ActuationParams.from_calibration(calibration)
         steer, speed = self._targets(windows, params)
-        init = np.stack([self._initial_state(windows, i, steer[i, 0]) for i in range(len(windows))])
+        init = self._initial_states(windows, steer[:, 0])
         ctrl = self.physics.control_vectors(steer[:, 1:], speed[:, 1:])
         with rollout.Rollout(nthread=self.nthread) as r:
             states, _ = r.rollout(self.model, self._datas, init, ctrl)
@@ -158,6 +158,14 @@ class Replayer:
         row_speed = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1)) / windows.period_s
         return {"x": x, "y": y, "heading": yaw, "speed": row_speed}
 
+    def initial_states(self, windows: Windows, calibration: CarCalibration | None = None) -> np.ndarray:
+        """(W, nstate) the MuJoCo state (``mjSTATE_FULLPHYSICS``) each window starts from."""
+        params = ActuationParams.from_calibration(calibration or CarCalibration())
+        return self._initial_states(windows, self._targets(windows, params)[0][:, 0])
+
+    def _initial_states(self, windows: Windows, steer_deg: np.ndarray) -> np.ndarray:
+        return np.stack([self._initial_state(windows, i, steer_deg[i]) for i in range(len(windows))])
+
     def _targets(self, windows: Windows, params: ActuationParams) -> tuple[np.ndarray, np.ndarray]:
         """(W, 1 + H·substeps) servo targets: the one in force just before the window, then each substep's."""
         s, h = windows.substeps, windows.horizon
@@ -173,12 +181,13 @@ class Replayer:
 
     def _initial_state(self, windows: Windows, i: int, steer_deg: float) -> np.ndarray:
         tr, k = windows.trajectories[windows.traj[i]], int(windows.start[i])
-        pose, speed, yaw_rate = initial_motion(tr, k, windows.period_s)
+        pose, velocity, yaw_rate = initial_motion(tr, k, windows.period_s)
         self.physics.reset(pose)
         data = self.physics.data
         v_root = self.model.jnt_dofadr[self.model.joint("car_root").id]
-        data.qvel[v_root : v_root + 2] = speed * math.cos(pose.yaw), speed * math.sin(pose.yaw)
+        data.qvel[v_root : v_root + 2] = velocity
         data.qvel[v_root + 5] = yaw_rate
+        speed = float(velocity @ (math.cos(pose.yaw), math.sin(pose.yaw)))
         for side, sign in (("l", 1.0), ("r", -1.0)):
             wheel_speed = (speed - sign * yaw_rate * TRACK_WIDTH_M / 2) / WHEEL_RADIUS_M
             for axle in ("f", "r"):
@@ -189,17 +198,18 @@ class Replayer:
         return state
 
 
-def initial_motion(tr: Trajectory, k: int, period_s: float) -> tuple[Pose, float, float]:
-    """Base_link pose, forward speed (m/s) and yaw rate (rad/s) at sample k from the samples around it."""
+def initial_motion(tr: Trajectory, k: int, period_s: float) -> tuple[Pose, np.ndarray, float]:
+    """Base_link pose, velocity (vx, vy in m/s, world frame) and yaw rate (rad/s) at sample k, from central
+    differences of the samples around it. The velocity keeps its sideways part: a sliding car starts sliding."""
     h = math.radians(tr.heading_deg[k])
     d = tr.reference_point_m
     pose = Pose(tr.x[k] - d * math.cos(h), tr.y[k] - d * math.sin(h), h)
     dh = math.remainder(math.radians(tr.heading_deg[k + 1] - tr.heading_deg[k - 1]), 2 * math.pi)
     yaw_rate = dh / (2 * period_s)
-    v_ref = math.hypot(tr.x[k + 1] - tr.x[k - 1], tr.y[k + 1] - tr.y[k - 1]) / (2 * period_s)
+    v_ref = np.array([tr.x[k + 1] - tr.x[k - 1], tr.y[k + 1] - tr.y[k - 1]]) / (2 * period_s)
     # The reference point ahead of base_link also moves sideways when the car turns: remove that part.
-    speed = math.sqrt(max(v_ref**2 - (yaw_rate * d) ** 2, 0.0))
-    return pose, speed, yaw_rate
+    velocity = v_ref - yaw_rate * d * np.array([-math.sin(h), math.cos(h)])
+    return pose, velocity, yaw_rate
 
 
 def _yaw(quat: np.ndarray) -> np.ndarray:

@@ -1,0 +1,190 @@
+"""Calibration on logs from a car with an effect the log does not declare: does it name and measure the effect?
+
+The logs are made here, by driving the simulator's MuJoCo car one physics substep at a time with this file's
+own implementation of each effect (forward-Euler lags, a queue for dead time, a plain multiplier for gain),
+not with ``sim.actuation``, and are written as plain CSVs with measurement noise. The calibration must choose
+the right effect (and none on a clean car), recover its value within a tolerance, and cut the error on
+episodes it did not fit on.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from common.car_calibration import CarCalibration, load_calibration
+from common.config import EnvConfig
+from sim.calibration import read_log
+from sim.calibration.fit import calibrate, score
+from sim.calibration.replay import Replayer, make_windows, residuals
+from sim.env import RacerEnv
+from sim.physics import CarPhysics, Pose
+from sim.texture import TextureFrame
+from sim.world import build_model
+
+SUBSTEPS, H = 8, 1 / 120
+REF = 0.14  # the measured point, ahead of base_link, as in DeepRacer logs
+
+
+class Injected:
+    """An effect between command and servos, written independently of sim/actuation.py."""
+
+    def __init__(self, name: str | None, value: float) -> None:
+        self.name, self.value = name, value
+        self.queue: collections.deque = collections.deque()
+        self.y_steer = self.y_speed = 0.0
+
+    def targets(self, steer: float, speed: float) -> tuple[float, float]:
+        """Servo targets for one substep of the command (steer, speed)."""
+        if self.name == "steering_gain":
+            return self.value * steer, speed
+        if self.name == "steering_lag":
+            self.y_steer += (steer - self.y_steer) * H / self.value  # forward Euler, not the exact form
+            return self.y_steer, speed
+        if self.name == "speed_lag":
+            self.y_speed += (speed - self.y_speed) * H / self.value
+            return steer, self.y_speed
+        if self.name == "steering_delay":
+            self.queue.append(steer)
+            n = round(self.value / H)
+            return (self.queue.popleft() if len(self.queue) > n else 0.0), speed
+        assert self.name is None
+        return steer, speed
+
+
+def _commands(rng: np.random.Generator, steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """DeepRacer-like actions (7 steering angles × 2 speeds), each held for 1 to 4 steps."""
+    steer, speed = [], []
+    while len(steer) < steps:
+        hold = int(rng.integers(1, 5))
+        steer += [float(rng.choice([-30, -20, -10, 0, 10, 20, 30]))] * hold
+        speed += [float(rng.choice([1.0, 2.0]))] * hold
+    return np.array(steer[:steps]), np.array(speed[:steps])
+
+
+def write_log(
+    path: Path, effect: str | None, value: float, episodes: int = 40, steps: int = 60, seed: int = 0, noise: float = 1.0
+) -> Path:
+    """Drive the car with the injected effect and write a plain CSV (noisy positions and headings)."""
+    rng = np.random.default_rng(seed)
+    ph = CarPhysics(build_model(TextureFrame(x0=-50, y1=50, ppm=1, width=100, height=100)))
+    lines = ["# reference_point_m: 0.14", "episode,time_s,steer_cmd_deg,speed_cmd_mps,x_m,y_m,heading_deg"]
+    for ep in range(episodes):
+        ph.reset(Pose(0.0, 0.0, float(rng.uniform(-math.pi, math.pi))))
+        inject = Injected(effect, value)
+        steer, speed = _commands(rng, steps)
+        for k in range(steps):
+            p = ph.pose
+            x, y = p.ahead(REF) + rng.normal(0, 0.003 * noise, 2)  # 3 mm and 0.2° of measurement noise
+            heading = math.degrees(math.remainder(p.yaw + math.radians(rng.normal(0, 0.2 * noise)), 2 * math.pi))
+            lines.append(f"{ep},{k / 15:.6f},{steer[k]},{speed[k]},{x:.5f},{y:.5f},{heading:.4f}")
+            for _ in range(SUBSTEPS):
+                ph.command(*inject.targets(steer[k], speed[k]))
+                ph.step(substeps=1)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+CASES = [
+    # (effect, injected value, the parameter, relative tolerance on it)
+    ("steering_lag", 0.25, "tau_s", 0.15),
+    ("steering_lag", 0.6, "tau_s", 0.15),
+    ("steering_delay", 0.1, "delay_s", 0.2),
+    ("speed_lag", 0.3, "tau_s", 0.15),
+    ("steering_gain", 0.6, "gain", 0.1),
+]
+
+
+@pytest.mark.parametrize(("effect", "value", "param", "rtol"), CASES)
+def test_calibration_names_and_measures_an_undeclared_effect(tmp_path, effect, value, param, rtol):
+    trajectories = read_log(write_log(tmp_path / "car.csv", effect, value))
+    result = calibrate(trajectories, max_windows=120, progress=lambda _: None)
+    found = {e.name: e.params for e in result.calibration.effects}
+    assert list(found) == [effect], f"found {found}"
+    assert found[effect][param] == pytest.approx(value, rel=rtol)
+    stderr = result.calibration.effects[0].stderr[param]
+    assert 0 < stderr < 0.5 * value  # an uncertainty is reported, and it is smaller than the value
+    before, after = result.report["error_before"], result.report["error_after"]
+    assert after["position_m"] < 0.5 * before["position_m"]
+    assert after["heading_deg"] < 0.5 * before["heading_deg"] or effect == "speed_lag"
+    assert after["speed_mps"] < before["speed_mps"] or effect != "speed_lag"
+    # The report is scored on episodes that neither fitted the parameters nor chose the effects.
+    fitted = {(f["file"], e) for f in result.report["fit_on"] for e in f["episodes"]}
+    chosen_on = {(f["file"], e) for f in result.report["selected_on"] for e in f["episodes"]}
+    scored = {(f["file"], e) for f in result.report["evaluated_on"] for e in f["episodes"]}
+    assert scored and not scored & (fitted | chosen_on)
+
+
+def test_clean_car_gets_no_effect(tmp_path):
+    trajectories = read_log(write_log(tmp_path / "clean.csv", None, 0.0))
+    result = calibrate(trajectories, max_windows=120, progress=lambda _: None)
+    assert result.calibration.effects == []
+    # The simulator's own car replays its own log closely: what is left is the noise and the initial state.
+    assert result.report["error_before"]["position_m"] < 0.05
+    assert result.report["error_before"]["heading_deg"] < 3.0
+
+
+def test_replay_drives_the_simulators_car(tmp_path):
+    """A replay window equals stepping the env's car (CarPhysics) from the same state with the same commands."""
+    trajectories = read_log(write_log(tmp_path / "c.csv", "steering_lag", 0.3, episodes=2, steps=40))
+    cal = CarCalibration.from_values({"steering_lag": {"tau_s": 0.3}, "speed_lag": {"tau_s": 0.2}})
+    windows = make_windows(trajectories, stride=7)
+    replayer = Replayer(nthread=1)
+    sim = replayer.replay(windows, cal)
+    starts = replayer.initial_states(windows, cal)
+    ph = CarPhysics(build_model(TextureFrame(x0=-50, y1=50, ppm=1, width=100, height=100)))
+    ph.set_calibration(cal)
+    for i in range(len(windows)):
+        tr, k = windows.trajectories[windows.traj[i]], int(windows.start[i])
+        ph.reset(Pose(0, 0, 0))
+        for j in range(k):  # brings the actuation (lags) to its state at the window start...
+            ph.command(tr.steer_cmd_deg[j], tr.speed_cmd_mps[j])
+            ph.step()
+        # ...then the car is put in the window's measured starting state
+        mujoco.mj_setState(ph.model, ph.data, starts[i], mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        xs = []
+        for j in range(k, k + windows.horizon):
+            ph.command(tr.steer_cmd_deg[j], tr.speed_cmd_mps[j])
+            ph.step()
+            xs.append(ph.pose.ahead(REF))
+        np.testing.assert_allclose(np.array(xs)[:, 0], sim["x"][i, 1:], atol=1e-9)
+        np.testing.assert_allclose(np.array(xs)[:, 1], sim["y"][i, 1:], atol=1e-9)
+
+
+def test_env_built_with_the_calibration_reproduces_the_measured_car(tmp_path):
+    """Fit, write car.json, load it into an env, drive the logged commands: it follows the log, the plain env not."""
+    from racer.calibrate import run_calibrate
+
+    log = write_log(tmp_path / "lag.csv", "steering_lag", 0.4, seed=3)
+    run_calibrate([log], out=tmp_path / "car.json", max_windows=120, say=lambda _: None)
+    car = load_calibration(tmp_path / "car.json")
+    errors = {}
+    for name, cfg in (("plain", EnvConfig()), ("calibrated", EnvConfig(car=car))):
+        env = RacerEnv(cfg)
+        errs = []
+        for tr in read_log(log)[:6]:
+            h0 = math.radians(tr.heading_deg[0])
+            env.physics.reset(Pose(tr.x[0] - REF * math.cos(h0), tr.y[0] - REF * math.sin(h0), h0))
+            for k in range(len(tr) - 1):
+                env.physics.command(tr.steer_cmd_deg[k], tr.speed_cmd_mps[k])
+                env.physics.step()
+            end = env.physics.pose.ahead(REF)
+            errs.append(math.hypot(end[0] - tr.x[-1], end[1] - tr.y[-1]))  # after 4 s of open-loop driving
+        errors[name] = float(np.sqrt(np.mean(np.square(errs))))
+    assert errors["calibrated"] < 0.25 * errors["plain"], errors
+    assert errors["calibrated"] < 0.15
+
+
+def test_score_on_other_logs_uses_all_their_windows(tmp_path):
+    trajectories = read_log(write_log(tmp_path / "g.csv", "steering_gain", 0.6, episodes=6, seed=5))
+    right = CarCalibration.from_values({"steering_gain": {"gain": 0.6}})
+    result = score(right, trajectories)
+    assert result.report["windows_evaluated"] == len(make_windows(trajectories))
+    assert result.report["error_after"]["heading_deg"] < 0.3 * result.report["error_before"]["heading_deg"]
+    meas = result.windows.measured()
+    assert np.allclose(residuals(result.replays["measured"], meas)["dx"], 0)
