@@ -10,6 +10,7 @@ import numpy as np
 from common.car_calibration import EFFECTS, CarCalibration, load_calibration, save_calibration
 from sim.calibration import read_logs
 from sim.calibration.fit import Result, calibrate, score
+from sim.calibration.replay import TIMINGS
 
 
 def run_calibrate(
@@ -21,8 +22,11 @@ def run_calibrate(
     track: str | None = None,
     max_windows: int = 400,
     say: Callable[[str], None] = print,
+    timing: str = "auto",
 ) -> dict:
     """Fit effects on ``logs`` (or score the calibration ``apply`` on them) and return the report."""
+    if timing not in ("auto", *TIMINGS):
+        raise ValueError(f"--timing {timing!r} is not one of auto, {', '.join(TIMINGS)}")
     for name in effects or []:
         if name not in EFFECTS:
             raise ValueError(f"--effect {name!r} is not an effect; known: {', '.join(EFFECTS)}")
@@ -34,11 +38,11 @@ def run_calibrate(
         raise ValueError(f"no usable episode in {', '.join(map(str, logs))}")
     say(f"{len(trajectories)} episodes, {sum(len(t) for t in trajectories)} samples")
     if calibration is not None:
-        result = score(calibration, trajectories)
+        result = score(calibration, trajectories, timing=timing)
         result.report["fit_on"] = []  # nothing was fitted here: the calibration came from elsewhere
         result.report["calibration"] = str(apply)
     else:
-        result = calibrate(trajectories, effects, max_windows, say)
+        result = calibrate(trajectories, effects, max_windows, say, timing)
         if out is not None:
             save_calibration(result.calibration, out)
             say(f"wrote {out}")
@@ -57,7 +61,7 @@ def plot_calibration(result: Result, path: Path, episodes: int = 3) -> None:
 
     fig, axes = plt.subplots(2, 2, figsize=(12, 9))
     _plot_paths(axes[0, 0], result, episodes)
-    t = np.arange(1, result.windows.horizon + 1) * result.windows.period_s
+    t = np.cumsum(np.median(result.windows.durations(), axis=0))
     res = {k: _residual(result, k) for k in ("before", "after")}
     panels = [
         (axes[0, 1], "position error (m)", lambda r: np.hypot(r["dx"], r["dy"])),

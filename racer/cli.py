@@ -359,12 +359,15 @@ def calibrate_cmd(
     ] = None,
     track: Annotated[str | None, typer.Option(help="Track the logs were driven on (for the picture).")] = None,
     max_windows: Annotated[int, typer.Option(min=20, help="Replay windows to fit on (and to choose on).")] = 400,
+    timing: Annotated[
+        str, typer.Option(help="Row durations: auto, nominal, logged or logged_previous (see the README).")
+    ] = "auto",
 ) -> None:
     """Fit the car to measured logs (effects, values, error before/after on held-out episodes), or --apply one."""
     from racer.calibrate import run_calibrate
 
     try:
-        report = run_calibrate(logs, apply, out, png, effects, track, max_windows, console.print)
+        report = run_calibrate(logs, apply, out, png, effects, track, max_windows, console.print, timing)
     except _user_errors() as exc:
         fail(str(exc).splitlines()[0])
     if json_out != "-":

@@ -119,9 +119,10 @@ def actuate(
 
 
 def actuate_sequence(
-    p: ActuationParams, steer_cmd: np.ndarray, speed_cmd: np.ndarray, substeps: int, substep_s: float
+    p: ActuationParams, steer_cmd: np.ndarray, speed_cmd: np.ndarray, substeps: int | np.ndarray, substep_s: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Servo targets, one per substep, for a sequence of control-step commands applied from rest."""
+    """Servo targets, one per substep, for a sequence of commands applied from rest, each held for ``substeps``
+    (one number for all, or one per command)."""
     steer, speed, _ = actuate(
         p, np.repeat(steer_cmd, substeps), np.repeat(speed_cmd, substeps), initial_state(p, substep_s), substep_s
     )

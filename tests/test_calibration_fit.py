@@ -21,7 +21,8 @@ from common.car_calibration import CarCalibration, load_calibration
 from common.config import EnvConfig
 from sim.calibration import read_log
 from sim.calibration.fit import calibrate, score
-from sim.calibration.replay import Replayer, make_windows, residuals
+from sim.calibration.logs import Trajectory
+from sim.calibration.replay import Replayer, detect_timing, make_windows, residuals
 from sim.env import RacerEnv
 from sim.physics import CarPhysics, Pose
 from sim.texture import TextureFrame
@@ -68,9 +69,17 @@ def _commands(rng: np.random.Generator, steps: int) -> tuple[np.ndarray, np.ndar
 
 
 def write_log(
-    path: Path, effect: str | None, value: float, episodes: int = 40, steps: int = 60, seed: int = 0, noise: float = 1.0
+    path: Path,
+    effect: str | None,
+    value: float,
+    episodes: int = 40,
+    steps: int = 60,
+    seed: int = 0,
+    noise: float = 1.0,
+    jitter: bool = False,
 ) -> Path:
-    """Drive the car with the injected effect and write a plain CSV (noisy positions and headings)."""
+    """Drive the car with the injected effect and write a plain CSV (noisy positions and headings). With
+    ``jitter`` each row lasts 6 to 10 substeps instead of 8, and the time stamps say so."""
     rng = np.random.default_rng(seed)
     ph = CarPhysics(build_model(TextureFrame(x0=-50, y1=50, ppm=1, width=100, height=100)))
     lines = ["# reference_point_m: 0.14", "episode,time_s,steer_cmd_deg,speed_cmd_mps,x_m,y_m,heading_deg"]
@@ -78,12 +87,15 @@ def write_log(
         ph.reset(Pose(0.0, 0.0, float(rng.uniform(-math.pi, math.pi))))
         inject = Injected(effect, value)
         steer, speed = _commands(rng, steps)
+        t = 0.0
         for k in range(steps):
             p = ph.pose
             x, y = p.ahead(REF) + rng.normal(0, 0.003 * noise, 2)  # 3 mm and 0.2° of measurement noise
             heading = math.degrees(math.remainder(p.yaw + math.radians(rng.normal(0, 0.2 * noise)), 2 * math.pi))
-            lines.append(f"{ep},{k / 15:.6f},{steer[k]},{speed[k]},{x:.5f},{y:.5f},{heading:.4f}")
-            for _ in range(SUBSTEPS):
+            lines.append(f"{ep},{t:.6f},{steer[k]},{speed[k]},{x:.5f},{y:.5f},{heading:.4f}")
+            substeps = int(rng.integers(6, 11)) if jitter else SUBSTEPS
+            t += substeps * H
+            for _ in range(substeps):
                 ph.command(*inject.targets(steer[k], speed[k]))
                 ph.step(substeps=1)
     path.write_text("\n".join(lines) + "\n")
@@ -188,3 +200,33 @@ def test_score_on_other_logs_uses_all_their_windows(tmp_path):
     assert result.report["error_after"]["heading_deg"] < 0.3 * result.report["error_before"]["heading_deg"]
     meas = result.windows.measured()
     assert np.allclose(residuals(result.replays["measured"], meas)["dx"], 0)
+
+
+def test_rows_of_uneven_length_are_replayed_for_their_logged_time(tmp_path):
+    """A log whose rows last 50 to 83 ms, with honest time stamps: replayed for the logged steps, the car's own
+    log replays almost exactly; replayed on a fixed 1/15 s grid, it does not."""
+    trajectories = read_log(write_log(tmp_path / "j.csv", None, 0.0, episodes=8, noise=0.0, jitter=True))
+    assert detect_timing(trajectories) == "logged"
+    logged = score(CarCalibration(), trajectories).report
+    nominal = score(CarCalibration(), trajectories, timing="nominal").report
+    assert logged["row_timing"] == "logged" and nominal["row_timing"] == "nominal"
+    assert logged["error_before"]["speed_mps"] < 0.3 * nominal["error_before"]["speed_mps"]
+    assert logged["error_before"]["position_m"] < 0.05
+
+
+@pytest.mark.parametrize("rule", ["nominal", "logged", "logged_previous"])
+def test_detect_timing_tells_the_three_rules_apart(rule):
+    """A point at 1 m/s whose rows last 50–83 ms: the time stamps follow its rows, lead them by one, or jitter."""
+    rng = np.random.default_rng(1)
+    trajectories = []
+    for ep in range(5):
+        dur = rng.uniform(0.05, 0.083, 80)
+        x = np.r_[0.0, np.cumsum(dur)]  # 1 m/s: the distance of row k is its duration
+        stamps = {
+            "logged": x,
+            "logged_previous": np.r_[0.0, np.cumsum(np.r_[dur[1:], 1 / 15])],
+            "nominal": np.arange(81) / 15 + rng.uniform(-0.015, 0.015, 81),
+        }[rule]
+        zeros = np.zeros(81)
+        trajectories.append(Trajectory("synthetic", ep, stamps, zeros, zeros + 1, x, zeros, zeros))
+    assert detect_timing(trajectories) == rule

@@ -31,7 +31,7 @@ from scipy.optimize import minimize, minimize_scalar
 
 from common.car_calibration import EFFECTS, CarCalibration
 from sim.calibration.logs import Trajectory
-from sim.calibration.replay import Replayer, Windows, make_windows, residuals
+from sim.calibration.replay import Replayer, Windows, detect_timing, make_windows, residuals
 
 log = logging.getLogger(__name__)
 
@@ -400,10 +400,13 @@ class Result:
     """Simulated windows, "before" (uncalibrated) and "after", plus "measured"."""
 
 
-def score(calibration: CarCalibration, trajectories: list[Trajectory], replayer: Replayer | None = None) -> Result:
-    """Error before (uncalibrated car) and after (with ``calibration``) on all windows of ``trajectories``."""
+def score(
+    calibration: CarCalibration, trajectories: list[Trajectory], replayer: Replayer | None = None, timing: str = "auto"
+) -> Result:
+    """Error before (uncalibrated car) and after (with ``calibration``) on all windows of ``trajectories``
+    (``timing``: how long each row is replayed for, see ``sim.calibration.replay.TIMINGS``)."""
     replayer = replayer or Replayer()
-    windows = make_windows(trajectories)
+    windows = make_windows(trajectories, timing=timing)
     meas = windows.measured()
     before, after = replayer.replay(windows), replayer.replay(windows, calibration)
     res_b, res_a = residuals(before, meas), residuals(after, meas)
@@ -413,7 +416,8 @@ def score(calibration: CarCalibration, trajectories: list[Trajectory], replayer:
         "error_after": error_summary(res_a),
         "evaluated_on": sources(trajectories),
         "windows_evaluated": len(windows),
-        "window_s": round(windows.horizon * windows.period_s, 4),
+        "window_s": round(float(np.median(windows.durations().sum(axis=1))), 4),
+        "row_timing": windows.timing,
         "breakdown_before": breakdown(res_b, windows),
         "breakdown_after": breakdown(res_a, windows),
     }
@@ -434,20 +438,23 @@ def calibrate(
     candidates: list[str] | None = None,
     max_windows: int = MAX_FIT_WINDOWS,
     progress: Callable[[str], None] = log.info,
+    timing: str = "auto",
 ) -> Result:
     """Choose and fit the effects on part of the episodes; score before and after on episodes it did not use."""
+    if timing == "auto":
+        timing = detect_timing(trajectories)  # one rule for all parts, decided on all the logs given
     parts = split_episodes(trajectories)
     if not all(parts.values()):
         raise ValueError(f"need at least 4 usable episodes to fit, choose and report apart; got {len(trajectories)}")
     replayer = Replayer()
-    fit_w = spread(make_windows(parts["fit"], stride=5), max_windows)
-    sel_w = spread(make_windows(parts["select"], stride=5), max_windows)
+    fit_w = spread(make_windows(parts["fit"], stride=5, timing=timing), max_windows)
+    sel_w = spread(make_windows(parts["select"], stride=5, timing=timing), max_windows)
     scales = channel_scales(residuals(replayer.replay(fit_w), fit_w.measured()))
     progress(f"fit on {len(fit_w)} windows, choose on {len(sel_w)}; uncalibrated fit cost 3.000")
     cal, rounds = select_effects(
         Objective(replayer, fit_w, scales), Objective(replayer, sel_w, scales), candidates, progress
     )
-    result = score(cal, parts["report"], replayer)
+    result = score(cal, parts["report"], replayer, timing)
     result.report.update(
         {
             "fit_on": sources(parts["fit"]),

@@ -6,9 +6,12 @@ steering hinges at the angle the actuation had reached, and is then driven open 
 of samples k … k+H-1 through the calibration's effects (``sim.actuation``). The simulated reference point and
 heading at samples k+1 … k+H are compared with the measured ones.
 
-Time: each row is replayed for the log's median sample period rounded to whole physics substeps (1/15 s
-for DeepRacer logs), not for its logged time step, because DeepRacer's ``tstamp`` jitters by ±20 ms while the
-distance the car covers per row does not follow it (correlation -0.02 over 4,000 steady rows of the ROS1 set).
+Time: each row is replayed for a whole number of physics substeps (1/120 s). How many is a property of the
+log (:func:`detect_timing`): in the ROS1 DeepRacer logs ``tstamp`` jitters by ±20 ms while the distance the
+car covers per row does not follow it (correlation -0.02 over 4,000 steady rows), so every row is replayed for
+the median step (1/15 s); in the ROS2 simapp logs the distance of row k follows ``t[k] - t[k-1]``
+(correlation 0.57): the positions trail the time stamps by a row, and each row is replayed for that step; a
+real car's log with honest time stamps follows its own steps ``t[k+1] - t[k]``.
 
 The residual of a window, per sample i = 1 … H: ``dx``, ``dy`` (m) of the reference point, ``dheading`` (deg,
 wrapped) and ``dspeed`` (m/s): the speed of the reference point over row i-1 → i (distance / period),
@@ -19,7 +22,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import mujoco
 import numpy as np
@@ -36,6 +39,11 @@ WINDOW_S = 1.0
 """Length of a replay window, s."""
 
 
+TIMINGS = ("nominal", "logged", "logged_previous")
+"""How long each row is replayed for: the median step of the logs; the row's own logged step t[k+1] - t[k];
+or the step logged one row earlier, t[k] - t[k-1] (ROS2 simapp logs, whose positions trail their times)."""
+
+
 @dataclass(frozen=True)
 class Windows:
     """Replay windows cut from measured trajectories; arrays have one row per window."""
@@ -47,22 +55,17 @@ class Windows:
     """(W,) sample index k where each window starts."""
     horizon: int
     """Samples replayed per window, H."""
-    substeps: int
-    """Physics substeps per sample."""
-
-    @property
-    def period_s(self) -> float:
-        """Replayed duration of one sample, s."""
-        return self.substeps * _substep_s()
+    row_substeps: list[np.ndarray]
+    """Per trajectory: physics substeps each of its rows is replayed for (one entry per sample)."""
+    timing: str = "nominal"
+    """Which rule of :data:`TIMINGS` set ``row_substeps``."""
 
     def __len__(self) -> int:
         return len(self.start)
 
     def subset(self, mask_or_index: np.ndarray) -> Windows:
         """The windows selected by a boolean mask or an index array."""
-        return Windows(
-            self.trajectories, self.traj[mask_or_index], self.start[mask_or_index], self.horizon, self.substeps
-        )
+        return replace(self, traj=self.traj[mask_or_index], start=self.start[mask_or_index])
 
     def episode_keys(self) -> np.ndarray:
         """(W,) an integer per distinct (file, episode) of each window: the unit of independence."""
@@ -75,6 +78,11 @@ class Windows:
         speed = np.stack([self.trajectories[t].speed_cmd_mps[s] for t, s in zip(self.traj, steps, strict=True)])
         return steer, speed
 
+    def durations(self) -> np.ndarray:
+        """(W, H) replayed duration of each row of each window, s."""
+        steps = self.start[:, None] + np.arange(self.horizon)
+        return np.stack([self.row_substeps[t][s] for t, s in zip(self.traj, steps, strict=True)]) * _substep_s()
+
     def measured(self) -> dict[str, np.ndarray]:
         """(W, H+1) measured reference point x, y (m), heading (rad) and (W, H) row speeds (m/s)."""
         steps = self.start[:, None] + np.arange(self.horizon + 1)
@@ -82,7 +90,7 @@ class Windows:
         x = np.stack([tr.x[s] for tr, s in zip(trajs, steps, strict=True)])
         y = np.stack([tr.y[s] for tr, s in zip(trajs, steps, strict=True)])
         h = np.stack([np.radians(tr.heading_deg[s]) for tr, s in zip(trajs, steps, strict=True)])
-        speed = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1)) / self.period_s
+        speed = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1)) / self.durations()
         return {"x": x, "y": y, "heading": h, "speed": speed}
 
 
@@ -92,30 +100,65 @@ def _substep_s() -> float:
     return 1.0 / (CONTROL_HZ * PHYSICS_SUBSTEPS)
 
 
-def substeps_per_sample(steps_s: np.ndarray) -> int:
-    """Physics substeps that best match the median of sample steps (s)."""
-    return max(1, round(float(np.median(steps_s)) / _substep_s()))
+def detect_timing(trajectories: list[Trajectory], min_corr: float = 0.3) -> str:
+    """Which logged time step, if any, the distance covered per row follows (see :data:`TIMINGS`).
+
+    Both are high-passed (each row minus the mean of its neighbours) so that speed changes do not count.
+    Below ``min_corr`` the logged steps are taken as jitter of the time stamps, not of the motion: "nominal".
+    """
+    dist, own, prev = [], [], []
+    for tr in trajectories:
+        if len(tr) < 5:
+            continue
+        d, dt = np.hypot(np.diff(tr.x), np.diff(tr.y)), np.diff(tr.t)
+        hp = lambda a: a[1:-1] - (a[:-2] + a[2:]) / 2  # noqa: E731
+        dist.append(hp(d)[1:])
+        own.append(hp(dt)[1:])
+        prev.append(hp(dt)[:-1])
+    if not dist:
+        return "nominal"
+    dist_all = np.concatenate(dist)
+    corr = {}
+    for name, steps in (("logged", own), ("logged_previous", prev)):
+        a = np.concatenate(steps)
+        corr[name] = float(np.corrcoef(dist_all, a)[0, 1]) if a.std() > 0 and dist_all.std() > 0 else 0.0
+    best = max(corr, key=corr.get)
+    return best if corr[best] > min_corr else "nominal"
 
 
-def make_windows(trajectories: list[Trajectory], stride: int | None = None, window_s: float = WINDOW_S) -> Windows:
+def row_substeps(tr: Trajectory, timing: str, median_substeps: int) -> np.ndarray:
+    """Physics substeps for each row of a trajectory under a timing rule (at least 1 each)."""
+    dt = np.diff(tr.t)
+    if timing == "nominal":
+        return np.full(len(tr), median_substeps)
+    steps = np.r_[dt, np.median(dt)] if timing == "logged" else np.r_[np.median(dt), dt]
+    return np.maximum(1, np.round(steps / _substep_s())).astype(int)
+
+
+def make_windows(
+    trajectories: list[Trajectory], stride: int | None = None, window_s: float = WINDOW_S, timing: str = "auto"
+) -> Windows:
     """Windows of about ``window_s`` starting every ``stride`` samples (default: one window length) from sample 1.
 
-    Every row is replayed for the median sample step of all the trajectories (in whole substeps); windows need
-    the samples around their start for the initial speed, so they start at sample 1 and end at least one
-    sample before the last.
+    ``timing`` is one of :data:`TIMINGS`, or "auto" (:func:`detect_timing`). Windows need the samples around
+    their start for the initial speed, so they start at sample 1 and end at least one sample before the last.
     """
     if not trajectories:
         raise ValueError("no trajectories to make replay windows from")
-    # One period for all: the median step of all the logs (a few ROS2 episodes run at 58 ms, most at 67 ms).
-    substeps = substeps_per_sample(np.concatenate([np.diff(t.t) for t in trajectories]))
-    horizon = max(2, round(window_s / (substeps * _substep_s())))
+    if timing == "auto":
+        timing = detect_timing(trajectories)
+    if timing not in TIMINGS:
+        raise ValueError(f"timing {timing!r} is not one of {', '.join(TIMINGS)} or auto")
+    median = max(1, round(float(np.median(np.concatenate([np.diff(t.t) for t in trajectories]))) / _substep_s()))
+    horizon = max(2, round(window_s / (median * _substep_s())))
     stride = stride or horizon
     traj, start = [], []
     for i, tr in enumerate(trajectories):
         ks = np.arange(1, len(tr) - horizon, stride)
         traj.extend([i] * len(ks))
         start.extend(ks)
-    return Windows(trajectories, np.array(traj, int), np.array(start, int), horizon, substeps)
+    subs = [row_substeps(tr, timing, median) for tr in trajectories]
+    return Windows(trajectories, np.array(traj, int), np.array(start, int), horizon, subs, timing)
 
 
 class Replayer:
@@ -139,13 +182,12 @@ class Replayer:
         calibration = calibration or CarCalibration()
         self.physics.set_calibration(calibration)  # the tyres' friction, on the model the rollout uses
         params = ActuationParams.from_calibration(calibration)
-        steer, speed = self._targets(windows, params)
+        steer, speed, sample_at = self._targets(windows, params)
         init = self._initial_states(windows, steer[:, 0])
         ctrl = self.physics.control_vectors(steer[:, 1:], speed[:, 1:])
         with rollout.Rollout(nthread=self.nthread) as r:
             states, _ = r.rollout(self.model, self._datas, init, ctrl)
-        s = windows.substeps
-        qpos = states[:, s - 1 :: s, self._root_q : self._root_q + 7]
+        qpos = np.take_along_axis(states, sample_at[..., None], axis=1)[..., self._root_q : self._root_q + 7]
         yaw = _yaw(qpos[..., 3:7])
         ref_d = np.array([windows.trajectories[t].reference_point_m for t in windows.traj])[:, None]
         x = qpos[..., 0] + ref_d * np.cos(yaw)
@@ -154,7 +196,7 @@ class Replayer:
         x = np.concatenate([meas0["x"][:, :1], x], axis=1)
         y = np.concatenate([meas0["y"][:, :1], y], axis=1)
         yaw = np.concatenate([meas0["heading"][:, :1], yaw], axis=1)
-        row_speed = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1)) / windows.period_s
+        row_speed = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1)) / windows.durations()
         return {"x": x, "y": y, "heading": yaw, "speed": row_speed}
 
     def initial_states(self, windows: Windows, calibration: CarCalibration | None = None) -> np.ndarray:
@@ -165,22 +207,32 @@ class Replayer:
     def _initial_states(self, windows: Windows, steer_deg: np.ndarray) -> np.ndarray:
         return np.stack([self._initial_state(windows, i, steer_deg[i]) for i in range(len(windows))])
 
-    def _targets(self, windows: Windows, params: ActuationParams) -> tuple[np.ndarray, np.ndarray]:
-        """(W, 1 + H·substeps) servo targets: the one in force just before the window, then each substep's."""
-        s, h = windows.substeps, windows.horizon
-        per_traj = {}
+    def _targets(self, windows: Windows, params: ActuationParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Servo targets (W, 1 + N): the one in force just before each window, then one per substep (windows
+        shorter than the longest, N substeps, are padded with their last target); and (W, H) the substep
+        after which each of the window's samples is taken."""
+        per_traj, cum = {}, {}
         for t in np.unique(windows.traj):
-            tr = windows.trajectories[t]
-            st, sp = actuate_sequence(params, tr.steer_cmd_deg, tr.speed_cmd_mps, s, _substep_s())
-            per_traj[t] = (np.concatenate([[0.0], st]), np.concatenate([[0.0], sp]))
-        idx = windows.start[:, None] * s + np.arange(h * s + 1)  # index 0 = the substep before the window
-        steer = np.stack([per_traj[t][0][i] for t, i in zip(windows.traj, idx, strict=True)])
-        speed = np.stack([per_traj[t][1][i] for t, i in zip(windows.traj, idx, strict=True)])
-        return steer, speed
+            tr, subs = windows.trajectories[t], windows.row_substeps[t]
+            st, sp = actuate_sequence(params, tr.steer_cmd_deg, tr.speed_cmd_mps, subs, _substep_s())
+            per_traj[t] = (np.r_[0.0, st], np.r_[0.0, sp])
+            cum[t] = np.r_[0, np.cumsum(subs)]
+        first = np.array([cum[t][k] for t, k in zip(windows.traj, windows.start, strict=True)])
+        ends = np.stack(
+            [cum[t][k + 1 : k + windows.horizon + 1] for t, k in zip(windows.traj, windows.start, strict=True)]
+        )
+        sample_at = ends - first[:, None] - 1
+        n = int(sample_at.max()) + 1
+        steer, speed = np.empty((len(windows), n + 1)), np.empty((len(windows), n + 1))
+        for w, (t, f) in enumerate(zip(windows.traj, first, strict=True)):
+            idx = np.minimum(f + np.arange(n + 1), len(per_traj[t][0]) - 1)  # index 0 = the substep before
+            steer[w], speed[w] = per_traj[t][0][idx], per_traj[t][1][idx]
+        return steer, speed, sample_at
 
     def _initial_state(self, windows: Windows, i: int, steer_deg: float) -> np.ndarray:
         tr, k = windows.trajectories[windows.traj[i]], int(windows.start[i])
-        pose, velocity, yaw_rate = initial_motion(tr, k, windows.period_s)
+        subs = windows.row_substeps[windows.traj[i]]
+        pose, velocity, yaw_rate = initial_motion(tr, k, (subs[k - 1] + subs[k]) * _substep_s())
         self.physics.reset(pose)
         data = self.physics.data
         v_root = self.model.jnt_dofadr[self.model.joint("car_root").id]
@@ -197,15 +249,16 @@ class Replayer:
         return state
 
 
-def initial_motion(tr: Trajectory, k: int, period_s: float) -> tuple[Pose, np.ndarray, float]:
+def initial_motion(tr: Trajectory, k: int, span_s: float) -> tuple[Pose, np.ndarray, float]:
     """Base_link pose, velocity (vx, vy in m/s, world frame) and yaw rate (rad/s) at sample k, from central
-    differences of the samples around it. The velocity keeps its sideways part: a sliding car starts sliding."""
+    differences over the rows k-1 and k (lasting ``span_s`` together). The velocity keeps its sideways part: a
+    sliding car starts sliding."""
     h = math.radians(tr.heading_deg[k])
     d = tr.reference_point_m
     pose = Pose(tr.x[k] - d * math.cos(h), tr.y[k] - d * math.sin(h), h)
     dh = math.remainder(math.radians(tr.heading_deg[k + 1] - tr.heading_deg[k - 1]), 2 * math.pi)
-    yaw_rate = dh / (2 * period_s)
-    v_ref = np.array([tr.x[k + 1] - tr.x[k - 1], tr.y[k + 1] - tr.y[k - 1]]) / (2 * period_s)
+    yaw_rate = dh / span_s
+    v_ref = np.array([tr.x[k + 1] - tr.x[k - 1], tr.y[k + 1] - tr.y[k - 1]]) / span_s
     # The reference point ahead of base_link also moves sideways when the car turns: remove that part.
     velocity = v_ref - yaw_rate * d * np.array([-math.sin(h), math.cos(h)])
     return pose, velocity, yaw_rate
