@@ -7,11 +7,11 @@ of samples k … k+H-1 through the calibration's effects (``sim.actuation``). Th
 heading at samples k+1 … k+H are compared with the measured ones.
 
 Time: each row is replayed for a whole number of physics substeps (1/120 s). How many is a property of the
-log (:func:`detect_timing`): in the ROS1 DeepRacer logs ``tstamp`` jitters by ±20 ms while the distance the
-car covers per row does not follow it (correlation -0.02 over 4,000 steady rows), so every row is replayed for
-the median step (1/15 s); in the ROS2 simapp logs the distance of row k follows ``t[k] - t[k-1]``
-(correlation 0.57): the positions trail the time stamps by a row, and each row is replayed for that step; a
-real car's log with honest time stamps follows its own steps ``t[k+1] - t[k]``.
+log (:func:`detect_timing`, the rule under which the rows' speeds are smoothest): in the ROS1 DeepRacer logs
+``tstamp`` jitters by ±20 ms while the distance the car covers per row does not follow it (correlation -0.02
+over 4,000 steady rows), so every row is replayed for the median step (1/15 s); in some ROS2 simapp logs the
+distance of row k follows ``t[k] - t[k-1]`` (the positions trail the time stamps by a row); a real car's log
+with honest time stamps follows its own steps ``t[k+1] - t[k]``.
 
 The residual of a window, per sample i = 1 … H: ``dx``, ``dy`` (m) of the reference point, ``dheading`` (deg,
 wrapped) and ``dspeed`` (m/s): the speed of the reference point over row i-1 → i (distance / period),
@@ -100,30 +100,26 @@ def _substep_s() -> float:
     return 1.0 / (CONTROL_HZ * PHYSICS_SUBSTEPS)
 
 
-def detect_timing(trajectories: list[Trajectory], min_corr: float = 0.3) -> str:
-    """Which logged time step, if any, the distance covered per row follows (see :data:`TIMINGS`).
+def detect_timing(trajectories: list[Trajectory]) -> str:
+    """The rule of :data:`TIMINGS` under which the rows' speeds (distance / duration) are smoothest.
 
-    Both are high-passed (each row minus the mean of its neighbours) so that speed changes do not count.
-    Below ``min_corr`` the logged steps are taken as jitter of the time stamps, not of the motion: "nominal".
+    If the distance covered per row follows a logged time step, dividing by that step removes the jitter;
+    if the time stamps jitter on their own, dividing by them adds it. Smoothness: the RMS of each row's speed
+    minus the mean of its neighbours'. A property of the log, decided without the car model.
     """
-    dist, own, prev = [], [], []
-    for tr in trajectories:
-        if len(tr) < 5:
-            continue
-        d, dt = np.hypot(np.diff(tr.x), np.diff(tr.y)), np.diff(tr.t)
-        hp = lambda a: a[1:-1] - (a[:-2] + a[2:]) / 2  # noqa: E731
-        dist.append(hp(d)[1:])
-        own.append(hp(dt)[1:])
-        prev.append(hp(dt)[:-1])
-    if not dist:
-        return "nominal"
-    dist_all = np.concatenate(dist)
-    corr = {}
-    for name, steps in (("logged", own), ("logged_previous", prev)):
-        a = np.concatenate(steps)
-        corr[name] = float(np.corrcoef(dist_all, a)[0, 1]) if a.std() > 0 and dist_all.std() > 0 else 0.0
-    best = max(corr, key=corr.get)
-    return best if corr[best] > min_corr else "nominal"
+    roughness = {}
+    for rule in TIMINGS:
+        hp = []
+        for tr in trajectories:
+            if len(tr) < 4:
+                continue
+            d, dt = np.hypot(np.diff(tr.x), np.diff(tr.y)), np.diff(tr.t)
+            med = np.median(dt)
+            dur = {"nominal": np.full_like(dt, med), "logged": dt, "logged_previous": np.r_[med, dt[:-1]]}[rule]
+            v = d / dur
+            hp.append(v[1:-1] - (v[:-2] + v[2:]) / 2)
+        roughness[rule] = float(np.mean(np.square(np.concatenate(hp)))) if hp else 0.0
+    return min(TIMINGS, key=lambda r: roughness[r])  # ties go to "nominal", first in TIMINGS
 
 
 def row_substeps(tr: Trajectory, timing: str, median_substeps: int) -> np.ndarray:
