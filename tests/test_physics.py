@@ -2,6 +2,7 @@
 
 import math
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -40,7 +41,16 @@ def test_actuators_velocity_per_wheel_position_per_hinge(physics):
     names = {m.actuator(i).name for i in range(m.nu)}
     assert names == {"fl_drive", "fr_drive", "rl_drive", "rr_drive", "fl_steer", "fr_steer"}
     assert m.actuator("fl_drive").trntype == 0 and m.actuator("fl_steer").trntype == 0
-    assert np.degrees(m.jnt_range[m.joint("fl_steer").id]).tolist() == pytest.approx([-30, 30])
+    # The servo limits the angle to DeepRacer's ±30°; the mechanical stop sits beyond it, never reached.
+    assert np.degrees(m.actuator_ctrlrange[m.actuator("fl_steer").id]).tolist() == pytest.approx([-30, 30], abs=1e-3)
+    assert np.degrees(m.jnt_range[m.joint("fl_steer").id]).tolist() == pytest.approx([-34, 34])
+
+
+def test_full_lock_stays_off_the_mechanical_stop(physics):
+    drive(physics, Pose(0, 0, 0), 30.0, 2.0, 30)
+    assert 29.0 < physics.steering_deg < 31.0
+    active = physics.data.efc_type[: physics.data.nefc]
+    assert int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT) not in active.tolist()
 
 
 def test_reset_puts_car_at_rest_at_pose(physics):
