@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.car_calibration import EFFECTS, CarCalibration, load_calibration, save_calibration
+from common.car_calibration import EFFECTS, load_calibration, save_calibration
 from sim.calibration import read_logs
 from sim.calibration.fit import Result, calibrate, score
 from sim.calibration.replay import TIMINGS
@@ -118,8 +118,3 @@ def _plot_paths(ax, result: Result, episodes: int) -> None:
     ax.set_ylabel("y (m)")
     ax.set_title(f"{len(chosen)} episodes: each window starts at the measured state (dots)")
     ax.legend(fontsize=8, loc="best")
-
-
-def calibration_summary(cal: CarCalibration) -> str:
-    """One line: the effects and their values."""
-    return "; ".join(f"{e.name} " + ", ".join(f"{k}={v:.3g}" for k, v in e.params.items()) for e in cal.effects)

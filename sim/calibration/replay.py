@@ -33,10 +33,12 @@ from sim.actuation import ActuationParams, actuate_sequence
 from sim.calibration.logs import Trajectory
 from sim.physics import TRACK_WIDTH_M, WHEEL_RADIUS_M, CarPhysics, Pose
 from sim.texture import TextureFrame
-from sim.world import build_model
+from sim.world import CONTROL_HZ, PHYSICS_SUBSTEPS, build_model
 
 WINDOW_S = 1.0
 """Length of a replay window, s."""
+SUBSTEP_S = 1.0 / (CONTROL_HZ * PHYSICS_SUBSTEPS)
+"""The simulator's physics step, s: rows are replayed for whole numbers of it."""
 
 
 TIMINGS = ("nominal", "logged", "logged_previous")
@@ -81,7 +83,7 @@ class Windows:
     def durations(self) -> np.ndarray:
         """(W, H) replayed duration of each row of each window, s."""
         steps = self.start[:, None] + np.arange(self.horizon)
-        return np.stack([self.row_substeps[t][s] for t, s in zip(self.traj, steps, strict=True)]) * _substep_s()
+        return np.stack([self.row_substeps[t][s] for t, s in zip(self.traj, steps, strict=True)]) * SUBSTEP_S
 
     def measured(self) -> dict[str, np.ndarray]:
         """(W, H+1) measured reference point x, y (m), heading (rad) and (W, H) row speeds (m/s)."""
@@ -92,12 +94,6 @@ class Windows:
         h = np.stack([np.radians(tr.heading_deg[s]) for tr, s in zip(trajs, steps, strict=True)])
         speed = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1)) / self.durations()
         return {"x": x, "y": y, "heading": h, "speed": speed}
-
-
-def _substep_s() -> float:
-    from sim.world import CONTROL_HZ, PHYSICS_SUBSTEPS
-
-    return 1.0 / (CONTROL_HZ * PHYSICS_SUBSTEPS)
 
 
 def detect_timing(trajectories: list[Trajectory]) -> str:
@@ -128,7 +124,7 @@ def row_substeps(tr: Trajectory, timing: str, median_substeps: int) -> np.ndarra
     if timing == "nominal":
         return np.full(len(tr), median_substeps)
     steps = np.r_[dt, np.median(dt)] if timing == "logged" else np.r_[np.median(dt), dt]
-    return np.maximum(1, np.round(steps / _substep_s())).astype(int)
+    return np.maximum(1, np.round(steps / SUBSTEP_S)).astype(int)
 
 
 def make_windows(
@@ -145,8 +141,8 @@ def make_windows(
         timing = detect_timing(trajectories)
     if timing not in TIMINGS:
         raise ValueError(f"timing {timing!r} is not one of {', '.join(TIMINGS)} or auto")
-    median = max(1, round(float(np.median(np.concatenate([np.diff(t.t) for t in trajectories]))) / _substep_s()))
-    horizon = max(2, round(window_s / (median * _substep_s())))
+    median = max(1, round(float(np.median(np.concatenate([np.diff(t.t) for t in trajectories]))) / SUBSTEP_S))
+    horizon = max(2, round(window_s / (median * SUBSTEP_S)))
     stride = stride or horizon
     traj, start = [], []
     for i, tr in enumerate(trajectories):
@@ -210,7 +206,7 @@ class Replayer:
         per_traj, cum = {}, {}
         for t in np.unique(windows.traj):
             tr, subs = windows.trajectories[t], windows.row_substeps[t]
-            st, sp = actuate_sequence(params, tr.steer_cmd_deg, tr.speed_cmd_mps, subs, _substep_s())
+            st, sp = actuate_sequence(params, tr.steer_cmd_deg, tr.speed_cmd_mps, subs, SUBSTEP_S)
             per_traj[t] = (np.r_[0.0, st], np.r_[0.0, sp])
             cum[t] = np.r_[0, np.cumsum(subs)]
         first = np.array([cum[t][k] for t, k in zip(windows.traj, windows.start, strict=True)])
@@ -228,7 +224,7 @@ class Replayer:
     def _initial_state(self, windows: Windows, i: int, steer_deg: float) -> np.ndarray:
         tr, k = windows.trajectories[windows.traj[i]], int(windows.start[i])
         subs = windows.row_substeps[windows.traj[i]]
-        pose, velocity, yaw_rate = initial_motion(tr, k, (subs[k - 1] + subs[k]) * _substep_s())
+        pose, velocity, yaw_rate = initial_motion(tr, k, (subs[k - 1] + subs[k]) * SUBSTEP_S)
         self.physics.reset(pose)
         data = self.physics.data
         v_root = self.model.jnt_dofadr[self.model.joint("car_root").id]
