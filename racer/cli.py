@@ -367,7 +367,9 @@ def calibrate_cmd(
     from racer.calibrate import run_calibrate
 
     try:
-        report = run_calibrate(logs, apply, out, png, effects, track, max_windows, console.print, timing)
+        # Progress goes to stderr, so that --json - leaves standard output to the JSON alone.
+        progress = Console(stderr=True, highlight=False).print
+        report = run_calibrate(logs, apply, out, png, effects, track, max_windows, progress, timing)
     except _user_errors() as exc:
         fail(str(exc).splitlines()[0])
     if json_out != "-":

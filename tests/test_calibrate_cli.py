@@ -73,8 +73,7 @@ def test_apply_scores_a_calibration_on_other_logs(fitted, tmp_path):
 def test_json_to_stdout_is_only_json(fitted):
     result = runner.invoke(app, ["calibrate", "--apply", str(fitted["dir"] / "car.json"), str(ROS1), "--json", "-"])
     assert result.exit_code == 0, result.output
-    start = result.output.index("{")
-    assert json.loads(result.output[start:])["error_before"]["position_m"] > 0
+    assert json.loads(result.stdout)["error_before"]["position_m"] > 0  # nothing but the JSON on stdout
 
 
 @pytest.mark.parametrize(
