@@ -230,3 +230,9 @@ def test_detect_timing_tells_the_three_rules_apart(rule):
         zeros = np.zeros(81)
         trajectories.append(Trajectory("synthetic", ep, stamps, zeros, zeros + 1, x, zeros, zeros))
     assert detect_timing(trajectories) == rule
+
+
+def test_episodes_too_short_for_a_window_are_a_clear_error(tmp_path):
+    trajectories = read_log(write_log(tmp_path / "short.csv", None, 0.0, episodes=2, steps=16))
+    with pytest.raises(ValueError, match="no replay window: every episode is shorter than 17 rows"):
+        make_windows(trajectories)

@@ -149,6 +149,10 @@ def make_windows(
         ks = np.arange(1, len(tr) - horizon, stride)
         traj.extend([i] * len(ks))
         start.extend(ks)
+    if not start:
+        raise ValueError(
+            f"no replay window: every episode is shorter than {horizon + 2} rows ({window_s:g} s and a row either side)"
+        )
     subs = [row_substeps(tr, timing, median) for tr in trajectories]
     return Windows(trajectories, np.array(traj, int), np.array(start, int), horizon, subs, timing)
 
