@@ -23,6 +23,7 @@ from sim.calibration import read_log
 from sim.calibration.fit import calibrate, score
 from sim.calibration.logs import Trajectory
 from sim.calibration.replay import Replayer, detect_timing, make_windows, residuals
+from sim.calibration.response import command_response
 from sim.env import RacerEnv
 from sim.physics import CarPhysics, Pose
 from sim.texture import TextureFrame
@@ -236,3 +237,20 @@ def test_episodes_too_short_for_a_window_are_a_clear_error(tmp_path):
     trajectories = read_log(write_log(tmp_path / "short.csv", None, 0.0, episodes=2, steps=16))
     with pytest.raises(ValueError, match="no replay window: every episode is shorter than 17 rows"):
         make_windows(trajectories)
+
+
+def test_command_response_shows_the_lag_and_its_absence(tmp_path):
+    """The per-row response of a car with a 0.4 s steering lag decays by exp(-T/τ) a row; our car's own is
+    over within two rows. The report carries it for the log and for the model before and after."""
+    lagged = read_log(write_log(tmp_path / "lag.csv", "steering_lag", 0.4, episodes=10, noise=0.0))
+    weights = command_response(lagged)["steering"]["weights"]
+    ratios = np.array(weights[3:8]) / np.array(weights[2:7])
+    assert np.median(ratios) == pytest.approx(math.exp(-1 / 15 / 0.4), abs=0.06)
+    clean = command_response(read_log(write_log(tmp_path / "c.csv", None, 0.0, episodes=10, noise=0.0)))["steering"]
+    assert sum(clean["weights"][:2]) > 0.9 * clean["gain"]
+    report = score(CarCalibration(), lagged[:3]).report
+    assert set(report["response"]) == {"measured", "before", "after"}
+    assert (
+        report["response"]["before"]["steering"]["weights"][0]
+        > 3 * report["response"]["measured"]["steering"]["weights"][0]
+    )

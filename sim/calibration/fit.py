@@ -32,6 +32,7 @@ from scipy.optimize import minimize, minimize_scalar
 from common.car_calibration import EFFECTS, CarCalibration
 from sim.calibration.logs import Trajectory
 from sim.calibration.replay import Replayer, Windows, detect_timing, make_windows, residuals
+from sim.calibration.response import command_response, simulate_open_loop
 
 log = logging.getLogger(__name__)
 
@@ -420,6 +421,13 @@ def score(
         "row_timing": windows.timing,
         "breakdown_before": breakdown(res_b, windows),
         "breakdown_after": breakdown(res_a, windows),
+    }
+    # The response shape (sim.calibration.response): measured, and the model driven open loop by the same
+    # commands, before and after. Where they differ, an effect is missing; what none explains is noise.
+    report["response"] = {
+        "measured": command_response(trajectories),
+        "before": command_response(simulate_open_loop(trajectories)),
+        "after": command_response(simulate_open_loop(trajectories, calibration)),
     }
     report["reduction"] = {
         k: _reduction(report["error_before"][k], report["error_after"][k])
