@@ -54,9 +54,9 @@ def _history(commands: np.ndarray, lags: int, before: float) -> np.ndarray:
 
 
 def _fit(x: list[np.ndarray], y: list[float], unit: str) -> dict:
-    """Least-squares weights of ``y`` on the rows of ``x``; too few rows give no weights."""
+    """Least-squares weights of ``y`` on the rows of ``x``; too few rows give no weights (and nulls in JSON)."""
     if not x or len(y) < 2 * len(x[0]):
-        return {"weights": [], "gain": float("nan"), f"unexplained_{unit}": float("nan"), "rows": len(y)}
+        return {"weights": [], "gain": None, f"unexplained_{unit}": None, "rows": len(y)}
     x_arr, y_arr = np.array(x), np.array(y)
     w, *_ = np.linalg.lstsq(x_arr, y_arr, rcond=None)
     resid = y_arr - x_arr @ w
