@@ -35,6 +35,11 @@ class Pose:
         return np.array([self.x + distance * math.cos(self.yaw), self.y + distance * math.sin(self.yaw)])
 
 
+def yaw_of_quaternion(w, x, y, z):
+    """Yaw (rad) of a MuJoCo quaternion (w, x, y, z): floats, or numpy arrays element by element."""
+    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
 class CarPhysics:
     """The car in its world. Commands are steering angle (deg, + = left) and speed (m/s)."""
 
@@ -130,8 +135,7 @@ class CarPhysics:
     def _read_pose(self) -> Pose:
         q = self.data.qpos
         x, y = q[self._root_q], q[self._root_q + 1]
-        w, qx, qy, qz = q[self._root_q + 3 : self._root_q + 7]
-        yaw = math.atan2(2 * (w * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+        yaw = float(yaw_of_quaternion(*q[self._root_q + 3 : self._root_q + 7]))
         return Pose(float(x), float(y), yaw)
 
     @property

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
-from common.car_calibration import EFFECTS, CarCalibration
+from common.car_calibration import EFFECTS, CarCalibration, ParamSpec
 from sim.calibration.logs import Trajectory
 from sim.calibration.replay import Replayer, Windows, detect_timing, make_windows, residuals
 from sim.calibration.response import command_response, simulate_open_loop
@@ -226,9 +226,18 @@ def fit_effects(
         )
         x = sol.x * scale
     r = vector(x)
-    jac = _jacobian(vector, x, r, 0.3 * scale, lo, hi)
-    err = _cluster_stderr(jac, r, objective.clusters())
+    err = _standard_errors(vector, x, r, specs, objective.clusters())
     return Fit(calibration(x, err), float(np.sum(r**2)), evals)
+
+
+def _standard_errors(
+    vector: Callable, x: np.ndarray, r: np.ndarray, specs: list[ParamSpec], clusters: np.ndarray
+) -> np.ndarray:
+    """Cluster-robust standard errors at ``x``, from a forward-difference Jacobian with steps of a third of
+    each parameter's typical size (smaller steps would see the contact solver's roughness, not the trend)."""
+    lo, hi = np.array([s.low for s in specs]), np.array([s.high for s in specs])
+    jac = _jacobian(vector, x, r, 0.3 * np.array([s.scale for s in specs]), lo, hi)
+    return _cluster_stderr(jac, r, clusters)
 
 
 def _jacobian(f: Callable, x: np.ndarray, fx: np.ndarray, step: np.ndarray, lo: np.ndarray, hi: np.ndarray):
@@ -319,14 +328,11 @@ def with_stderr(objective: Objective, cal: CarCalibration) -> CarCalibration:
     keys = _param_keys([e.name for e in cal.effects])
     specs = [EFFECTS[e].params[p] for e, p in keys]
     x = np.array([cal.value(e, p) for e, p in keys])
-    lo, hi = np.array([s.low for s in specs]), np.array([s.high for s in specs])
 
-    def vector(v: np.ndarray) -> np.ndarray:
-        return objective.vector(objective.residual(_to_calibration(keys, np.clip(v, lo, hi), None, {})))
+    def vector(v: np.ndarray) -> np.ndarray:  # _to_calibration keeps each value within its bounds
+        return objective.vector(objective.residual(_to_calibration(keys, v, None, {})))
 
-    r = vector(x)
-    jac = _jacobian(vector, x, r, 0.3 * np.array([s.scale for s in specs]), lo, hi)
-    return _to_calibration(keys, x, _cluster_stderr(jac, r, objective.clusters()), {})
+    return _to_calibration(keys, x, _standard_errors(vector, x, vector(x), specs, objective.clusters()), {})
 
 
 def _prune(

@@ -31,7 +31,7 @@ from mujoco import rollout
 from common.car_calibration import CarCalibration
 from sim.actuation import ActuationParams, actuate_sequence
 from sim.calibration.logs import Trajectory
-from sim.physics import TRACK_WIDTH_M, WHEEL_RADIUS_M, CarPhysics, Pose
+from sim.physics import TRACK_WIDTH_M, WHEEL_RADIUS_M, CarPhysics, Pose, yaw_of_quaternion
 from sim.texture import TextureFrame
 from sim.world import CONTROL_HZ, PHYSICS_SUBSTEPS, build_model
 
@@ -184,7 +184,7 @@ class Replayer:
         with rollout.Rollout(nthread=self.nthread) as r:
             states, _ = r.rollout(self.model, self._datas, init, ctrl)
         qpos = np.take_along_axis(states, sample_at[..., None], axis=1)[..., self._root_q : self._root_q + 7]
-        yaw = _yaw(qpos[..., 3:7])
+        yaw = yaw_of_quaternion(*np.moveaxis(qpos[..., 3:7], -1, 0))
         ref_d = np.array([windows.trajectories[t].reference_point_m for t in windows.traj])[:, None]
         x = qpos[..., 0] + ref_d * np.cos(yaw)
         y = qpos[..., 1] + ref_d * np.sin(yaw)
@@ -258,11 +258,6 @@ def initial_motion(tr: Trajectory, k: int, span_s: float) -> tuple[Pose, np.ndar
     # The reference point ahead of base_link also moves sideways when the car turns: remove that part.
     velocity = v_ref - yaw_rate * d * np.array([-math.sin(h), math.cos(h)])
     return pose, velocity, yaw_rate
-
-
-def _yaw(quat: np.ndarray) -> np.ndarray:
-    w, x, y, z = np.moveaxis(quat, -1, 0)
-    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
 def residuals(sim: dict[str, np.ndarray], meas: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
