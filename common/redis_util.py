@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from urllib.parse import urlsplit, urlunsplit
 
 import redis
@@ -41,3 +42,30 @@ def connect(url: str, retries: int = 3) -> redis.Redis:
         )
     except ValueError as exc:
         raise RedisUrlError(f"Redis URL {redact(url)!r} is not valid: {exc}") from None
+
+
+STARTUP_WAIT_S = 10.0
+"""How long a role process waits for Redis to answer at start (compose may start Redis a moment later)."""
+
+
+def connect_checked(url: str, wait_s: float = STARTUP_WAIT_S) -> redis.Redis:
+    """``connect`` plus a PING, so that a wrong host, port, password or TLS setting fails at start with one line
+    naming the URL (password hidden), instead of at the first command deep inside a run."""
+    client = connect(url)
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            client.ping()
+            return client
+        except redis.AuthenticationError as exc:
+            raise RedisUrlError(f"Redis at {redact(url)} refused the connection: {_reason(exc)}") from None
+        except redis.ResponseError as exc:  # NOAUTH and friends come back as plain errors from some servers
+            raise RedisUrlError(f"Redis at {redact(url)} refused the connection: {_reason(exc)}") from None
+        except (redis.ConnectionError, redis.TimeoutError, OSError) as exc:
+            if time.monotonic() > deadline:
+                raise RedisUrlError(f"cannot reach Redis at {redact(url)}: {_reason(exc)}") from None
+            time.sleep(0.5)
+
+
+def _reason(exc: BaseException) -> str:
+    return " ".join(str(exc).split())[:200] or type(exc).__name__

@@ -23,7 +23,9 @@ from model_store.store import (
     S3Store,
     StoreError,
     StoreKeyError,
+    StoreUnavailable,
     check_key,
+    is_transient,
     open_store,
 )
 
@@ -37,8 +39,10 @@ __all__ = [
     "S3Store",
     "StoreError",
     "StoreKeyError",
+    "StoreUnavailable",
     "check_key",
     "check_run_id",
+    "is_transient",
     "checkpoint_key",
     "checkpoint_meta_key",
     "list_models",

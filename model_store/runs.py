@@ -93,6 +93,12 @@ class RunStore:
         except StoreKeyError:
             return None
 
+    def _get_or_none(self, key: str) -> bytes | None:
+        try:
+            return self.store.get(key)
+        except StoreKeyError:
+            return None
+
     def _run_exists(self, run_id: str) -> bool:
         return next(iter(self.store.list(run_prefix(run_id))), None) is not None
 
@@ -109,16 +115,19 @@ class RunStore:
 
         The metadata is ``meta`` plus ``run_id``, ``version``, ``size_bytes`` and ``created`` (epoch s, if absent).
         A whole checkpoint (its .json exists) is never overwritten: StoreError. A half-written one (a .pt left by a
-        crash) is replaced.
+        crash) is replaced. Calling again with the same ``meta`` (including ``created``) after a failure part-way
+        finishes that save: a .json already stored with exactly these bytes only needs its pointer.
         """
         full = {**meta, "run_id": check_run_id(run_id), "version": _check_version(version), "size_bytes": len(payload)}
         full.setdefault("created", time.time())
         meta_bytes = _dumps(full)  # serialize first: unserializable meta must fail before anything is written
         meta_key = checkpoint_meta_key(run_id, version)
-        if self.store.exists(meta_key):
+        stored = self._get_or_none(meta_key)
+        if stored is not None and stored != meta_bytes:
             raise StoreError(f"checkpoint {version} of run {run_id!r} already exists: {self.store.key_uri(meta_key)}")
-        self.store.put(checkpoint_key(run_id, version), bytes(payload))
-        self.store.put(meta_key, meta_bytes)
+        if stored is None:
+            self.store.put(checkpoint_key(run_id, version), bytes(payload))
+            self.store.put(meta_key, meta_bytes)
         self.store.put(pointer_key(run_id, "latest"), _dumps({**full, "version": version}))
         return full
 
@@ -143,6 +152,16 @@ class RunStore:
             for info in self.store.list(prefix)
             if (m := _CKPT_NAME.match(info.key[len(prefix) :])) and m.group(2) == "json"
         }
+
+    def newest_whole(self, run_id: str) -> int | None:
+        """The highest version whose .pt and .json are both stored, or None.
+
+        It is the ``latest`` pointer's version, or newer when a writer died between a checkpoint's .json and the
+        pointer: resuming from it loses nothing that was whole."""
+        prefix = f"{run_prefix(run_id)}checkpoints/"
+        names = {info.key[len(prefix) :] for info in self.store.list(prefix)}
+        whole = [v for v in self._versions(run_id) if f"{v:09d}.pt" in names]
+        return max(whole, default=None)
 
     def checkpoint_meta(self, run_id: str, version: int) -> dict[str, Any]:
         """The metadata of a whole checkpoint; StoreKeyError if the run, the .json or the .pt is missing."""

@@ -25,6 +25,10 @@ class StoreError(RuntimeError):
     """A store operation failed; the message is one line naming the URI or key (never credentials)."""
 
 
+class StoreUnavailable(StoreError):
+    """The store did not answer, or failed on its side (HTTP 5xx, throttling): a later retry may succeed."""
+
+
 class StoreKeyError(StoreError, KeyError):
     """The key (or run, or checkpoint) does not exist."""
 
@@ -260,12 +264,12 @@ class S3Store(ObjectStore):
             raise StoreError(f"{_NO_CREDENTIALS} for {where}") from exc
         except _CONNECTION_ERRORS as exc:
             url = _redact_url(self._client.meta.endpoint_url)
-            raise StoreError(f"cannot reach S3 endpoint {url} ({type(exc).__name__}) for {where}") from exc
+            raise StoreUnavailable(f"cannot reach S3 endpoint {url} ({type(exc).__name__}) for {where}") from exc
         except bex.ParamValidationError as exc:
             raise StoreError(f"invalid S3 bucket or key: {where}") from exc
         except bex.BotoCoreError as exc:
             # Only the class name: botocore messages are not guaranteed to be free of request details.
-            raise StoreError(f"S3 error {type(exc).__name__} on {where}") from exc
+            raise StoreUnavailable(f"S3 error {type(exc).__name__} on {where}") from exc
 
     def _client_error(self, exc: bex.ClientError, where: str) -> StoreError:
         err = exc.response.get("Error", {})
@@ -279,6 +283,8 @@ class S3Store(ObjectStore):
             return StoreError(f"S3 rejected the credentials ({code}) for {where}")
         if code in ("AccessDenied", "403", "AllAccessDisabled"):
             return StoreError(f"access denied to {where}")
+        if (isinstance(status, int) and status >= 500) or code in ("SlowDown", "Throttling", "RequestTimeout"):
+            return StoreUnavailable(f"S3 error {code or '?'} (HTTP {status}) on {where}")
         return StoreError(f"S3 error {code or '?'} (HTTP {status}) on {where}")
 
     def put(self, key: str, data: bytes) -> None:
@@ -353,3 +359,9 @@ def open_store(uri: str, endpoint: str | None = None) -> ObjectStore:
     if not _BUCKET.match(bucket):
         raise StoreError(f"bad store URI {uri!r}: invalid bucket name {bucket!r}")
     return S3Store(bucket, prefix, endpoint)
+
+
+def is_transient(exc: BaseException) -> bool:
+    """Whether a later retry may cure ``exc``: the store did not answer or failed on its side (StoreUnavailable);
+    not a missing key or bucket, refused credentials or a bad name."""
+    return isinstance(exc, StoreUnavailable)

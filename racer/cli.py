@@ -44,6 +44,7 @@ def _user_errors() -> tuple[type[Exception], ...]:
     from common.car_calibration import CalibrationError
     from common.hyperparams import HyperparametersError
     from common.redis_util import RedisUrlError
+    from common.retry import OutageError
     from model_store import StoreError
     from racer.embedded_redis import RedisStartError
     from sim.reward import RewardFunctionError
@@ -61,6 +62,7 @@ def _user_errors() -> tuple[type[Exception], ...]:
         StoreError,
         RedisUrlError,
         RedisStartError,
+        OutageError,
         ValidationError,
         ValueError,
         FileNotFoundError,
@@ -599,5 +601,15 @@ def drive_cmd(
 
 
 def main() -> None:
-    """Entry point for ``python -m racer``."""
-    app()
+    """Entry point for ``racer`` and ``python -m racer``: a bad option or argument is one line too, not a box."""
+    try:
+        code = app(standalone_mode=False)  # a typer.Exit comes back as its exit code here
+    except typer.TyperException as exc:  # click's usage errors (typer vendors click)
+        ctx = getattr(exc, "ctx", None)
+        hint = f" (see {ctx.command_path} --help)" if ctx is not None else ""
+        Console(stderr=True).print(f"[bold red]error:[/] {exc.format_message()}{hint}", highlight=False, soft_wrap=True)
+        sys.exit(getattr(exc, "exit_code", 2))
+    except typer.Abort:
+        Console(stderr=True).print("aborted")
+        sys.exit(130)
+    sys.exit(code if isinstance(code, int) else 0)

@@ -14,12 +14,14 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
+import redis
 from rich.console import Console
 from rich.live import Live
 
 from common.config import RunConfig
 from common.keys import Keys
-from common.redis_util import connect
+from common.redis_util import connect, connect_checked, redact
+from model_store import open_store
 from racer.embedded_redis import EmbeddedRedis
 from trainer.evaluator import robust_streak
 
@@ -47,6 +49,12 @@ class TrainOptions:
     """Tracks the evaluator drives (empty = the run's track)."""
     stop_when_robust: int | None = None
     """Stop once this many consecutive evaluated checkpoints complete every evaluation lap."""
+    worker_restarts: int = 3
+    """Restarts allowed per worker slot after a crash or kill (not after a user error, exit code 2)."""
+
+
+USER_ERROR_EXIT = 2
+"""Exit code of a role process that stopped on a user error (bad reward function, bad file): restarting won't help."""
 
 
 def new_run_id() -> str:
@@ -95,6 +103,8 @@ def _status_line(status: dict | None, procs_alive: int, workers: int, evaluation
         f"{status['steps_per_s']:.0f} steps/s  progress {status['mean_progress']:.1f}%  "
         f"reward {status['mean_reward']:.1f}  workers {len(status['workers'])}/{workers}"
     )
+    if status.get("silent_workers"):
+        line += f"  silent: {', '.join(status['silent_workers'])}"
     if evaluation:
         line += f"  eval v{evaluation['version']}: {100 * evaluation['completion_rate']:.0f}% laps"
     return line
@@ -106,6 +116,9 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
     Returns the trainer's last status. Raises RuntimeError if the trainer process fails.
     """
     console = console or Console()
+    _check_store(opts.store, opts.s3_endpoint)
+    if opts.redis_url:
+        connect_checked(opts.redis_url).close()  # a wrong URL or password fails here, before any process starts
     with contextlib.ExitStack() as stack:
         redis_url = opts.redis_url or stack.enter_context(EmbeddedRedis()).url
         work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="racer-train-")))
@@ -121,10 +134,7 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
         trainer_args += ["--resume"] if opts.resume else []
         trainer_args += ["--threads", str(opts.trainer_threads)]
         trainer = _spawn(trainer_args, logs / "trainer.log")
-        workers = [
-            _spawn(["worker", "--run-id", run.run_id, "--index", str(k), *common], logs / f"worker-{k}.log")
-            for k in range(opts.workers)
-        ]
+        workers = [_spawn(_worker_args(run.run_id, k, common), logs / f"worker-{k}.log") for k in range(opts.workers)]
         evaluator = []
         if opts.evaluate:
             eval_args = ["evaluator", "--run-id", run.run_id, *common, "--every", str(opts.eval_every)]
@@ -132,9 +142,58 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
             eval_args += [arg for t in opts.eval_tracks for arg in ("--track", t)]
             evaluator.append(_spawn(eval_args, logs / "evaluator.log"))
         try:
-            return _watch(run, opts, redis_url, trainer, workers, console, logs)
+            return _watch(run, opts, redis_url, trainer, _Workers(workers, common, logs, opts.worker_restarts), console)
         finally:
             _stop_all([*workers, *evaluator, trainer])
+
+
+def _check_store(store: str, endpoint: str | None) -> None:
+    """Fail before starting anything on a bad store URI, a missing bucket or missing credentials (StoreError)."""
+    next(iter(open_store(store, endpoint).list("runs/")), None)
+
+
+def _worker_args(run_id: str, k: int, common: list[str]) -> list[str]:
+    return ["worker", "--run-id", run_id, "--index", str(k), *common]
+
+
+def _last_line(path: Path) -> str:
+    lines = path.read_text(errors="replace").strip().splitlines() if path.exists() else []
+    return lines[-1] if lines else ""
+
+
+@dataclass
+class _Workers:
+    """The worker processes of ``racer train``: report each exit, restart one that crashed or was killed."""
+
+    procs: list[subprocess.Popen]
+    """Worker k's current process; the list is the caller's and is updated in place, so that cleanup stops
+    restarted workers too."""
+    common: list[str]
+    logs: Path
+    max_restarts: int
+    restarts: dict[int, int] = field(default_factory=dict)
+    given_up: set[int] = field(default_factory=set)
+
+    def check(self, run_id: str, console: Console) -> None:
+        """Report workers that exited since the last check and restart those allowed."""
+        for k, p in enumerate(self.procs):
+            if p.poll() is None or k in self.given_up:
+                continue
+            log = self.logs / f"worker-{k}.log"
+            msg = f"worker {k} exited with code {p.returncode}: {_last_line(log)[-200:]} (log: {log})"
+            used = self.restarts.get(k, 0)
+            if p.returncode == USER_ERROR_EXIT or used >= self.max_restarts:
+                self.given_up.add(k)
+                console.print(f"[yellow]{msg}; not restarting", highlight=False)
+                continue
+            self.restarts[k] = used + 1
+            console.print(f"[yellow]{msg}; restarting it ({used + 1} of {self.max_restarts})", highlight=False)
+            self.procs[k] = _spawn(_worker_args(run_id, k, self.common), log)
+
+    @property
+    def alive(self) -> int:
+        """Worker processes running now."""
+        return sum(p.poll() is None for p in self.procs)
 
 
 def _watch(
@@ -142,31 +201,30 @@ def _watch(
     opts: TrainOptions,
     redis_url: str,
     trainer: subprocess.Popen,
-    workers: list[subprocess.Popen],
+    workers: _Workers,
     console: Console,
-    logs: Path,
 ) -> dict:
     r, keys = connect(redis_url), Keys(run.run_id)
     deadline = None if opts.time_limit_s is None else time.monotonic() + opts.time_limit_s
     status: dict | None = None
-    reported_dead: set[int] = set()
+    evals: list[dict] = []
     with Live(console=console, refresh_per_second=4, transient=False) as live:
         try:
             while deadline is None or time.monotonic() < deadline:
                 if trainer.poll() is not None:
                     if trainer.returncode == 0:
                         break  # finished by its own termination condition
-                    tail = (logs / "trainer.log").read_text(errors="replace").strip().splitlines()[-1:]
-                    raise RuntimeError(f"the trainer exited with code {trainer.returncode}: {' '.join(tail)}")
-                for k, w in enumerate(workers):
-                    if w.poll() is not None and k not in reported_dead:
-                        reported_dead.add(k)
-                        console.print(f"[yellow]worker {k} exited with code {w.returncode}; see {logs}/worker-{k}.log")
-                raw = r.get(keys.trainer_status)
-                status = json.loads(raw) if raw else status
-                evals = [json.loads(e) for e in r.lrange(keys.evaluations, 0, -1)]
-                alive = sum(w.poll() is None for w in workers)
-                live.update(_status_line(status, alive, opts.workers, evals[-1] if evals else None))
+                    tail = _last_line(workers.logs / "trainer.log")
+                    raise RuntimeError(f"the trainer exited with code {trainer.returncode}: {tail}")
+                workers.check(run.run_id, console)
+                try:
+                    raw = r.get(keys.trainer_status)
+                    status = json.loads(raw) if raw else status
+                    evals = [json.loads(e) for e in r.lrange(keys.evaluations, 0, -1)]
+                    line = _status_line(status, workers.alive, opts.workers, evals[-1] if evals else None)
+                except redis.RedisError as exc:  # the roles ride out the outage; so does the display
+                    line = f"Redis at {redact(redis_url)} unreachable ({type(exc).__name__}); the roles are retrying"
+                live.update(line)
                 if opts.stop_when_robust and robust_streak(evals) >= opts.stop_when_robust:
                     console.print(f"robust: {opts.stop_when_robust} checkpoints in a row completed every lap")
                     status = {**(status or {}), "stopped_robust": True}

@@ -6,6 +6,8 @@ import json
 import re
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from common.action_space import default_action_space, load_action_space
 from common.car_calibration import CarCalibration, load_calibration
 from common.config import EnvConfig, RandomizationConfig, RunConfig
@@ -45,7 +47,7 @@ def build_run(
     check_reward_function(load_reward_function(reward_path))
     actions = load_action_space(action_space) if action_space else default_action_space()
     hp = load_hyperparameters(hyperparams) if hyperparams else Hyperparameters()
-    dr = RandomizationConfig.model_validate(json.loads(Path(randomization).read_text())) if randomization else None
+    dr = load_randomization(randomization) if randomization else None
     car = load_calibration(car_calibration) if car_calibration else CarCalibration()
     env = EnvConfig(track=track, randomization=dr or RandomizationConfig(), car=car)
     policy = PolicyConfig(network=network_from_metadata(actions.neural_network), stack_size=hp.stack_size)
@@ -56,3 +58,24 @@ def build_run(
         "hyperparameters.json": hp.to_json().encode(),
     }
     return run, files
+
+
+class RandomizationFileError(ValueError):
+    """A domain-randomization settings file that cannot be used; the message names the file."""
+
+
+def load_randomization(path: str | Path) -> RandomizationConfig:
+    """Read a randomization JSON file; RandomizationFileError naming the file and the bad field."""
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise RandomizationFileError(f"randomization file {str(p)!r} does not exist") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise RandomizationFileError(f"randomization file {str(p)!r} is not valid JSON: {exc}") from None
+    try:
+        return RandomizationConfig.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(v) for v in err["loc"]) or "(top level)"
+        raise RandomizationFileError(f"randomization file {str(p)!r}: {where}: {err['msg']}") from None

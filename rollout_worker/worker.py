@@ -15,6 +15,7 @@ import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -24,9 +25,10 @@ from common.config import EnvConfig, RunConfig
 from common.keys import Keys
 from common.policy import ActorCritic, FrameStack, action_space_spec, build_policy, checkpoint_from_bytes
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
-from common.redis_util import connect
+from common.redis_util import connect_checked, redact
+from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
 from common.simtrace import SimTraceRecorder, simtrace_key
-from model_store import RunStore, StoreError, open_store
+from model_store import RunStore, StoreError, is_transient, open_store
 from model_store.localize import localize_env
 from sim.env import RacerEnv
 
@@ -48,6 +50,8 @@ class WorkerOptions:
     """Name in heartbeats and segments; default ``{host}-{pid}-{index}``."""
     policy_wait_s: float = 300.0
     """How long to wait for the trainer's first policy before giving up, seconds."""
+    outage_s: float = DEFAULT_GIVE_UP_S
+    """How long to ride out one Redis or store outage before exiting with an error, seconds."""
 
 
 @dataclass
@@ -73,10 +77,13 @@ class RolloutWorker:
         self.opts = opts
         self.stop = stop or threading.Event()
         self.keys = Keys(opts.run_id)
-        self.redis = connect(opts.redis_url)
+        self.redis = connect_checked(opts.redis_url)
         self.runs = RunStore(open_store(opts.store, opts.s3_endpoint))
+        self.redis_outage = Outage(f"Redis at {redact(opts.redis_url)}", redis_transient, log, self.stop, opts.outage_s)
+        self.store_outage = Outage(f"store {self.runs.store.uri}", is_transient, log, self.stop, opts.outage_s)
         if opts.worker_index is None:
-            opts.worker_index = int(self.redis.incr(self.keys.worker_slots)) - 1
+            slot = self.redis_outage.call("take a worker index", lambda: self.redis.incr(self.keys.worker_slots))
+            opts.worker_index = int(slot) - 1
         self.worker_id = opts.worker_id or f"{socket.gethostname()}-{os.getpid()}-{opts.worker_index}"
         self.policy_version = -1
         self.env_steps = 0
@@ -89,8 +96,9 @@ class RolloutWorker:
     def start(self) -> None:
         """Wait for the first policy, then build the env and the network from the run's files."""
         first = self._wait_for_policy()
-        self.run = RunConfig.model_validate_json(self.runs.read_file(self.opts.run_id, "config.json"))
-        self.env = RacerEnv(config=self._env_config())
+        config = self.store_outage.call("read the run", lambda: self.runs.read_file(self.opts.run_id, "config.json"))
+        self.run = RunConfig.model_validate_json(config)
+        self.env = RacerEnv(config=self.store_outage.call("read the run's files", self._env_config))
         self.stack = FrameStack(self.run.hyperparams.stack_size)
         obs_shape = (*self.env.observation_space.shape[:2], self.run.hyperparams.stack_size)
         self.model: ActorCritic = build_policy(obs_shape, action_space_spec(self.env.actions), self.run.policy)
@@ -111,7 +119,7 @@ class RolloutWorker:
     def _wait_for_policy(self) -> PolicyVersion:
         deadline = time.monotonic() + self.opts.policy_wait_s
         while not self.stop.is_set():
-            raw = self.redis.get(self.keys.policy)
+            raw = self.redis_outage.call("wait for the first policy", lambda: self.redis.get(self.keys.policy))
             if raw is not None:
                 return PolicyVersion.from_json(raw)
             if time.monotonic() > deadline:
@@ -123,7 +131,9 @@ class RolloutWorker:
 
     def _load(self, pv: PolicyVersion) -> None:
         self._upload_simtrace()  # the iteration acted with the previous version ends here
-        payload, _ = self.runs.load_checkpoint(self.opts.run_id, pv.version)
+        payload, _ = self.store_outage.call(
+            f"load policy v{pv.version}", lambda: self.runs.load_checkpoint(self.opts.run_id, pv.version)
+        )
         model_sd, _ = checkpoint_from_bytes(payload)
         self.model.load_state_dict(model_sd)
         self.policy_version = pv.version
@@ -135,9 +145,10 @@ class RolloutWorker:
         """Collect and push segments until stopped."""
         while not self.stop.is_set():
             seg = self.collect()
-            self.push(seg)
-            if not self.poll_policy():
-                self.wait_while_training()
+            # Through a Redis outage the segment waits here, whole; it is never sent in parts.
+            self.redis_outage.call("push a segment", partial(self.push, seg))
+            if not self.redis_outage.call("poll the policy", self.poll_policy):
+                self.redis_outage.call("wait for the update", self.wait_while_training)
 
     def wait_while_training(self, timeout_s: float = 300.0) -> None:
         """With ``max_policy_lag`` 0, segments collected during a PPO update would be dropped as stale: wait
@@ -145,9 +156,13 @@ class RolloutWorker:
         if self.run.max_policy_lag > 0:
             return
         deadline = time.monotonic() + timeout_s
+        next_beat = time.monotonic() + 1.0
         while not self.stop.is_set() and time.monotonic() < deadline and self.redis.exists(self.keys.training):
             if self.poll_policy():
                 return
+            if time.monotonic() > next_beat:  # a long PPO update must not make the trainer think we died
+                self.beat()
+                next_beat = time.monotonic() + max(1.0, self.run.heartbeat_ttl_s / 3)
             self.stop.wait(0.05)
         self.poll_policy()
 
@@ -221,20 +236,27 @@ class RolloutWorker:
 
     def push(self, seg: Segment) -> None:
         """Send a segment (one atomic XADD, capped stream) and refresh the heartbeat."""
-        self.segments += 1
         pipe = self.redis.pipeline(transaction=False)
         pipe.xadd(self.keys.segments, encode_segment(seg), maxlen=self.run.stream_maxlen, approximate=True)
-        pipe.set(self.keys.heartbeat(self.worker_id), self._heartbeat().to_json(), ex=int(self.run.heartbeat_ttl_s) + 1)
+        pipe.set(self.keys.heartbeat(self.worker_id), self._heartbeat(1).to_json(), ex=self._heartbeat_ex())
         pipe.execute()
+        self.segments += 1
 
-    def _heartbeat(self) -> Heartbeat:
+    def beat(self) -> None:
+        """Refresh the heartbeat without sending a segment (while waiting for the trainer)."""
+        self.redis.set(self.keys.heartbeat(self.worker_id), self._heartbeat().to_json(), ex=self._heartbeat_ex())
+
+    def _heartbeat_ex(self) -> int:
+        return int(self.run.heartbeat_ttl_s) + 1
+
+    def _heartbeat(self, sending: int = 0) -> Heartbeat:
         return Heartbeat(
             self.worker_id,
             os.getpid(),
             socket.gethostname(),
             self.policy_version,
             self.env_steps,
-            self.segments,
+            self.segments + sending,
             time.time(),
             self.env.track.name,
             self.policy_loaded_at,

@@ -18,6 +18,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -28,9 +29,10 @@ from common.config import EnvConfig, RunConfig
 from common.keys import Keys
 from common.policy import ActorCritic, FrameStack, action_space_spec, build_policy, checkpoint_from_bytes
 from common.protocol import PolicyVersion, ProtocolError
-from common.redis_util import connect
+from common.redis_util import connect_checked, redact
+from common.retry import Outage, redis_transient
 from common.simtrace import SimTraceRecorder, evaluation_stamp, simtrace_key
-from model_store import RunStore, StoreKeyError, open_store
+from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
 from sim.env import OBS_SHAPE, RacerEnv
 
@@ -238,43 +240,45 @@ def run_evaluator(opts: EvaluatorOptions, stop: threading.Event | None = None) -
     push each summary to Redis for ``racer train`` (status line, ``--stop-when-robust``)."""
     torch.set_num_threads(1)
     stop = stop or threading.Event()
-    r, keys = connect(opts.redis_url), Keys(opts.run_id)
+    r, keys = connect_checked(opts.redis_url), Keys(opts.run_id)
     runs = RunStore(open_store(opts.store, opts.s3_endpoint))
+    on_redis = Outage(f"Redis at {redact(opts.redis_url)}", redis_transient, log, stop).call
+    on_store = Outage(f"store {runs.store.uri}", is_transient, log, stop).call
     done = -1
     with tempfile.TemporaryDirectory(prefix="racer-eval-") as tmp:
         run = env_cfg = None
         while not stop.is_set():
-            pv = _newest(r, keys)
+            pv = on_redis("read the policy version", partial(_newest, r, keys))
             if pv is None or pv.version <= done or pv.version % max(1, opts.every):
                 stop.wait(0.5)
                 continue
             if run is None:
-                run = RunConfig.model_validate_json(runs.read_file(opts.run_id, "config.json"))
-                env_cfg = localize_env(run, runs, Path(tmp))
+                run = RunConfig.model_validate_json(
+                    on_store("read the run", partial(runs.read_file, opts.run_id, "config.json"))
+                )
+                env_cfg = on_store("read the run's files", partial(localize_env, run, runs, Path(tmp)))
             recorder = SimTraceRecorder()
+            evaluate = partial(evaluate_checkpoint, runs, run, env_cfg, pv.version, opts.settings, recorder)
             try:
-                record = evaluate_checkpoint(runs, run, env_cfg, pv.version, opts.settings, recorder)
+                record = on_store(f"evaluate v{pv.version}", evaluate)
             except StoreKeyError:  # pruned while we were behind: the next newest one will do
                 done = pv.version
                 continue
-            moved = save_evaluation(runs, record)
-            _save_simtrace(runs, opts.run_id, recorder, record["created"])
-            summary = {
-                k: record[k]
-                for k in (
-                    "version",
-                    "env_steps",
-                    "completion_rate",
-                    "mean_progress",
-                    "best_lap_s",
-                    "off_track",
-                    "score",
-                )
-            }
-            r.rpush(keys.evaluations, json.dumps({**summary, "best": moved}))
-            r.ltrim(keys.evaluations, -1000, -1)
+            moved = on_store("save the evaluation", partial(save_evaluation, runs, record))
+            on_store("save the sim-trace", partial(_save_simtrace, runs, opts.run_id, recorder, record["created"]))
+            summary = {k: record[k] for k in _SUMMARY_KEYS}
+            entry = json.dumps({**summary, "best": moved})
+            on_redis("report the evaluation", partial(_report, r, keys, entry))
             log.info("evaluated version %d: %s%s", pv.version, summary, " (new best)" if moved else "")
             done = pv.version
+
+
+_SUMMARY_KEYS = ("version", "env_steps", "completion_rate", "mean_progress", "best_lap_s", "off_track", "score")
+
+
+def _report(r, keys: Keys, entry: str) -> None:
+    """Append an evaluation summary for ``racer train`` (the list is capped: a run lasts hours)."""
+    r.pipeline().rpush(keys.evaluations, entry).ltrim(keys.evaluations, -1000, -1).execute()
 
 
 def _save_simtrace(runs: RunStore, run_id: str, recorder: SimTraceRecorder, created: float) -> None:

@@ -16,6 +16,7 @@ import statistics
 import tempfile
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,8 +26,9 @@ from common.config import RunConfig
 from common.keys import Keys
 from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes, checkpoint_to_bytes
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, decode_segment
-from common.redis_util import connect
-from model_store import RunStore, StoreKeyError, open_store
+from common.redis_util import connect_checked, redact
+from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
+from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
 from sim.env import RacerEnv
 from trainer.ppo import PPOBatch, compute_gae, update
@@ -53,6 +55,8 @@ class TrainerOptions:
     """Files written into a new run: reward_function.py, model_metadata.json, hyperparameters.json."""
     tensorboard: bool = True
     """Write TensorBoard scalars to ``runs/<id>/tensorboard/`` (in the store folder, or ./ for an S3 store)."""
+    outage_s: float = DEFAULT_GIVE_UP_S
+    """How long to ride out one Redis or store outage before exiting with an error, seconds."""
 
 
 @dataclass
@@ -63,8 +67,11 @@ class Stats:
     episodes: int = 0
     iteration: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
-    lag: list[int] = field(default_factory=list)
+    lag: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
+    """Policy lag of the most recent segments (bounded: a run lasts hours)."""
     recent: list[EpisodeSummary] = field(default_factory=list)
+    by_worker: dict[str, int] = field(default_factory=dict)
+    """Segments accepted from each worker id."""
     started: float = field(default_factory=time.monotonic)
 
     def drop(self, reason: str) -> None:
@@ -79,8 +86,14 @@ class Trainer:
         self.run, self.opts = run, opts
         self.stop = stop or threading.Event()
         self.keys = Keys(run.run_id)
-        self.redis = connect(opts.redis_url)
+        self.redis = connect_checked(opts.redis_url)
         self.runs = RunStore(open_store(opts.store, opts.s3_endpoint))
+        self.redis_outage = Outage(f"Redis at {redact(opts.redis_url)}", redis_transient, log, self.stop, opts.outage_s)
+        self.store_outage = Outage(f"store {self.runs.store.uri}", is_transient, log, self.stop, opts.outage_s)
+        self.live: dict[str, dict] = {}
+        """Last heartbeat of each worker seen alive (worker id → Heartbeat fields)."""
+        self.silent: dict[str, dict] = {}
+        """Workers whose heartbeat expired: worker id → their last heartbeat."""
         self.hp = run.hyperparams
         self.version = 0
         self.stats = Stats()
@@ -92,21 +105,25 @@ class Trainer:
 
     # --- start --------------------------------------------------------------------------------
     def start(self) -> None:
-        """Resume from the latest checkpoint, or write the run's files and publish version 0."""
+        """Resume from the newest whole checkpoint, or write the run's files and publish version 0."""
         if not self.opts.resume:
-            for name, data in self.opts.run_files.items():
-                self.runs.write_file(self.run.run_id, name, data)
-                # deepracer-utils looks for DeepRacer's copies of these two in model/ and ip/.
-                mirror = {"model_metadata.json": "model/", "hyperparameters.json": "ip/"}.get(name)
-                if mirror:
-                    self.runs.write_file(self.run.run_id, mirror + name, data)
-            self.runs.write_file(self.run.run_id, "config.json", self.run.model_dump_json(indent=2))
+            self.store_outage.call("write the run's files", self._write_run_files)
         self._build()
         if self.opts.resume:
-            self._resume()
+            self.store_outage.call("read the newest checkpoint", self._resume)
         else:
             self._checkpoint()
-        self._publish()
+        # A predecessor killed mid-update leaves its "training" mark, which would hold the workers back.
+        self.redis_outage.call("publish the policy", lambda: (self.redis.delete(self.keys.training), self._publish()))
+
+    def _write_run_files(self) -> None:
+        for name, data in self.opts.run_files.items():
+            self.runs.write_file(self.run.run_id, name, data)
+            # deepracer-utils looks for DeepRacer's copies of these two in model/ and ip/.
+            mirror = {"model_metadata.json": "model/", "hyperparameters.json": "ip/"}.get(name)
+            if mirror:
+                self.runs.write_file(self.run.run_id, mirror + name, data)
+        self.runs.write_file(self.run.run_id, "config.json", self.run.model_dump_json(indent=2))
 
     def _build(self) -> None:
         """Network and optimizer for the run's action space (read from the run's stored files)."""
@@ -122,7 +139,17 @@ class Trainer:
         self.generator = torch.Generator().manual_seed(self.run.seed)
 
     def _resume(self) -> None:
-        payload, meta = self.runs.load_checkpoint(self.run.run_id, "latest")
+        newest = self.runs.newest_whole(self.run.run_id)
+        pointer = (self.runs.pointer(self.run.run_id, "latest") or {}).get("version")
+        if newest is None:
+            raise StoreKeyError(
+                f"run {self.run.run_id!r} has no whole checkpoint to resume from in {self.runs.store.uri}"
+            )
+        if pointer != newest:
+            # The previous trainer died after writing checkpoint `newest` whole but before moving the pointer.
+            log.warning("latest pointer names version %s but version %d is whole: resuming from it", pointer, newest)
+            self.runs.set_pointer(self.run.run_id, "latest", newest)
+        payload, meta = self.runs.load_checkpoint(self.run.run_id, newest)
         model_sd, optim_sd = checkpoint_from_bytes(payload)
         self.model.load_state_dict(model_sd)
         if optim_sd is not None:
@@ -137,14 +164,19 @@ class Trainer:
         log.info("resumed run %s at version %d (%d env steps)", self.run.run_id, self.version, self.stats.env_steps)
 
     def _checkpoint(self) -> dict:
+        """Save the current version; through a store outage, retry the same bytes and metadata until it is whole."""
         payload = checkpoint_to_bytes(self.model.state_dict(), self.optimizer.state_dict())
         meta = {
             "env_steps": self.stats.env_steps,
             "episodes": self.stats.episodes,
             "iteration": self.stats.iteration,
             "config": json.loads(self.run.model_dump_json()),
+            "created": time.time(),  # fixed here, so that a retried save writes the very same metadata
         }
-        return self.runs.save_checkpoint(self.run.run_id, self.version, payload, meta)
+        return self.store_outage.call(
+            f"save checkpoint {self.version}",
+            lambda: self.runs.save_checkpoint(self.run.run_id, self.version, payload, meta),
+        )
 
     def _publish(self) -> None:
         key = f"runs/{self.run.run_id}/checkpoints/{self.version:09d}.pt"
@@ -160,14 +192,22 @@ class Trainer:
         deadline = None if self.opts.time_limit_s is None else time.monotonic() + self.opts.time_limit_s
         last_status = 0.0
         while not self.stop.is_set() and (deadline is None or time.monotonic() < deadline):
-            self.read(block_ms=500)
+            self.redis_outage.call("read segments", lambda: self.read(block_ms=500))
             if self.ready():
                 self.train()
             if time.monotonic() - last_status > 1.0:
-                self.write_status()
+                self.redis_outage.call("write the status", self.housekeeping)
                 last_status = time.monotonic()
             if self._done():
                 break
+        self.redis_outage.call("write the status", self.write_status)
+
+    def housekeeping(self) -> None:
+        """Once a second: the status for ``racer train``, and the policy key again if Redis lost it (a restarted
+        Redis without persistence comes back empty; workers and the evaluator need the key to find the policy)."""
+        if not self.redis.exists(self.keys.policy):
+            log.warning("the policy key was missing from Redis (restarted?): publishing version %d again", self.version)
+            self._publish()
         self.write_status()
 
     def read(self, block_ms: int = 500, count: int = 64) -> int:
@@ -178,6 +218,9 @@ class Trainer:
             for entry_id, fields in entries:
                 self.last_id = entry_id
                 kept += self._accept(fields)
+        if reply:
+            # Entries read are in the buffer now: free them in Redis at once rather than when MAXLEN pushes them out.
+            self.redis.xtrim(self.keys.segments, minid=self.last_id, approximate=True)
         return kept
 
     def _accept(self, fields: dict) -> int:
@@ -193,6 +236,7 @@ class Trainer:
             self.stats.drop("stale" if lag > 0 else "future_version")
             return 0
         self.buffer.append(seg)
+        self.stats.by_worker[seg.worker_id] = self.stats.by_worker.get(seg.worker_id, 0) + 1
         self.stats.env_steps += seg.steps
         self.stats.episodes += len(seg.episodes)
         self.stats.recent = (self.stats.recent + seg.episodes)[-100:]
@@ -207,7 +251,7 @@ class Trainer:
     def train(self) -> dict[str, float]:
         """One PPO iteration on the buffer, then checkpoint and publish the next version."""
         t0 = time.monotonic()
-        self.redis.set(self.keys.training, self.version, ex=600)
+        self.redis_outage.call("mark the update", lambda: self.redis.set(self.keys.training, self.version, ex=600))
         batch = make_batch(self.buffer, self.hp.discount_factor, self.run.hyperparams.gae_lambda)
         episodes = [e for s in self.buffer for e in s.episodes]
         lags = [self.version - s.policy_version for s in self.buffer]
@@ -230,9 +274,10 @@ class Trainer:
         self.version += 1
         self.stats.iteration += 1
         self._checkpoint()
-        self._publish()
-        self.redis.delete(self.keys.training)
-        self.runs.prune_checkpoints(self.run.run_id, self.run.keep_checkpoints)
+        self.redis_outage.call("publish the policy", lambda: (self._publish(), self.redis.delete(self.keys.training)))
+        self.store_outage.call(
+            "prune checkpoints", lambda: self.runs.prune_checkpoints(self.run.run_id, self.run.keep_checkpoints)
+        )
         self._record(result, episodes, lags, batch, time.monotonic() - t0)
         log.info("iteration %d: version %d, %s", self.stats.iteration, self.version, result)
         return result
@@ -264,7 +309,7 @@ class Trainer:
         }
         self.metrics.append(row)
         text = "".join(json.dumps(m) + "\n" for m in self.metrics)
-        self.runs.write_file(self.run.run_id, METRICS_FILE, text)
+        self.store_outage.call("write metrics", lambda: self.runs.write_file(self.run.run_id, METRICS_FILE, text))
         self._tensorboard(row, losses, episodes)
 
     def _tensorboard(self, row: dict, losses: dict, episodes: list[EpisodeSummary]) -> None:
@@ -308,8 +353,11 @@ class Trainer:
             "mean_progress": statistics.fmean(e.progress for e in recent) if recent else 0.0,
             "mean_reward": statistics.fmean(e.reward for e in recent) if recent else 0.0,
             "dropped": dict(self.stats.dropped),
-            "max_lag": max(self.stats.lag[-200:], default=0),
+            "max_lag": max(list(self.stats.lag)[-200:], default=0),
             "workers": self.workers(),
+            "silent_workers": sorted(self.silent),
+            "segments_by_worker": dict(self.stats.by_worker),
+            "outages": {"redis": self.redis_outage.outages, "store": self.store_outage.outages},
             "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             "time": time.time(),
         }
@@ -319,7 +367,7 @@ class Trainer:
         self.redis.set(self.keys.trainer_status, json.dumps(self.status()), ex=30)
 
     def workers(self) -> list[dict]:
-        """Live workers from their heartbeat keys (SCAN, never KEYS)."""
+        """Live workers from their heartbeat keys (SCAN, never KEYS); names, once, each worker that went silent."""
         out = []
         for key in self.redis.scan_iter(match=self.keys.heartbeat_pattern, count=100):
             raw = self.redis.get(key)
@@ -329,7 +377,27 @@ class Trainer:
                 out.append(Heartbeat.from_json(raw).__dict__)
             except ProtocolError:
                 self.stats.drop("bad_heartbeat")
+        self._note_silent({w["worker_id"]: w for w in out})
         return out
+
+    def _note_silent(self, alive: dict[str, dict]) -> None:
+        """Log a worker whose heartbeat key expired (killed, hung or cut off), and one that comes back."""
+        for wid, hb in self.live.items():
+            if wid not in alive and wid not in self.silent:
+                self.silent[wid] = hb
+                log.warning(
+                    "worker %s is silent: no heartbeat for %.0f s (TTL %.0f s expired); last seen at policy v%d "
+                    "after %d segments; training goes on without it",
+                    wid,
+                    time.time() - hb["time"],
+                    self.run.heartbeat_ttl_s,
+                    hb["policy_version"],
+                    hb["segments"],
+                )
+        for wid in alive:
+            if self.silent.pop(wid, None) is not None:
+                log.warning("worker %s is sending heartbeats again", wid)
+        self.live.update(alive)
 
 
 def _summary_writer(store: str, run_id: str):
@@ -381,6 +449,9 @@ def run_trainer(run: RunConfig, opts: TrainerOptions, stop: threading.Event | No
         trainer.start()
         trainer.run_forever()
         return trainer.status()
+    except InterruptedError:  # stopped (SIGTERM) while Redis or the store was unreachable
+        log.warning("stopped during an outage at version %d", trainer.version)
+        return {"policy_version": trainer.version, "env_steps": trainer.stats.env_steps}
     finally:
         if trainer.tb is not None:
             trainer.tb.close()
