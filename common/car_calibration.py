@@ -177,6 +177,8 @@ def load_calibration(path: str | Path) -> CarCalibration:
         text = path.read_text()
     except OSError as exc:
         raise CalibrationError(f"car calibration {path}: cannot read it ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise CalibrationError(f"car calibration {path}: not UTF-8 text") from None
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:

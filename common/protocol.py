@@ -146,7 +146,7 @@ def decode_segment(
         env_seed=_int(header, "env_seed"),
         arrays=arrays,
         episodes=_episodes(header),
-        created=float(header.get("created", 0.0)),
+        created=_created(header),
     )
 
 
@@ -168,7 +168,10 @@ def _header(f: dict[str, bytes]) -> dict:
 
 
 def _array(f: dict[str, bytes], header: dict, name: str) -> np.ndarray:
-    spec = (header.get("arrays") or {}).get(name)
+    specs = header.get("arrays")
+    if not isinstance(specs, dict):
+        raise ProtocolError("bad_header", f"arrays {type(specs).__name__}")
+    spec = specs.get(name)
     raw = f.get(f"a:{name}")
     if not isinstance(spec, dict) or raw is None:
         raise ProtocolError("missing_array", name)
@@ -207,6 +210,13 @@ def _check_shapes(a: dict[str, np.ndarray], steps: int, obs_shape: tuple, n_acti
             raise ProtocolError("bad_flag", name)
 
 
+def _created(h: dict) -> float:
+    v = h.get("created", 0.0)
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise ProtocolError("bad_header", f"created {v!r}")
+    return float(v)
+
+
 def _str(h: dict, key: str) -> str:
     v = h.get(key)
     if not isinstance(v, str) or not v or len(v) > 128:
@@ -222,13 +232,37 @@ def _int(h: dict, key: str) -> int:
 
 
 def _episodes(h: dict) -> list[EpisodeSummary]:
-    out = []
-    for e in h.get("episodes") or []:
-        try:
-            out.append(EpisodeSummary(**e))
-        except TypeError as exc:
-            raise ProtocolError("bad_header", f"episode summary: {exc}") from None
-    return out
+    episodes = h.get("episodes") or []
+    if not isinstance(episodes, list):
+        raise ProtocolError("bad_header", "episodes is not a list")
+    return [_typed(EpisodeSummary, e, "bad_header") for e in episodes]
+
+
+_JSON_TYPES: dict[str, tuple[type, ...]] = {
+    "str": (str,),
+    "int": (int,),
+    "float": (int, float),
+    "float | None": (int, float, type(None)),
+}
+
+
+def _typed(cls: type, d: object, reason: str):
+    """``cls(**d)`` for a flat dataclass of str/int/float fields, checking every value's type and finiteness:
+    a message from the network must not carry a string where the trainer does arithmetic."""
+    if not isinstance(d, dict):
+        raise ProtocolError(reason, f"{cls.__name__}: not an object")
+    try:
+        obj = cls(**d)
+    except TypeError as exc:
+        raise ProtocolError(reason, f"{cls.__name__}: {exc}") from None
+    for name, f in cls.__dataclass_fields__.items():
+        value = getattr(obj, name)
+        ok = _JSON_TYPES[str(f.type)]
+        if isinstance(value, bool) or not isinstance(value, ok):
+            raise ProtocolError(reason, f"{cls.__name__}.{name} = {value!r}")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ProtocolError(reason, f"{cls.__name__}.{name} = {value!r}")
+    return obj
 
 
 @dataclass(frozen=True)
@@ -279,8 +313,9 @@ class Heartbeat:
 
     @classmethod
     def from_json(cls, raw: bytes | str) -> Heartbeat:
-        """Parse and validate; raise ProtocolError if malformed."""
+        """Parse and validate (every field's type); raise ProtocolError if malformed."""
         try:
-            return cls(**json.loads(raw))
+            data = json.loads(raw)
         except (ValueError, TypeError) as exc:
             raise ProtocolError("bad_heartbeat", str(exc)) from None
+        return _typed(cls, data, "bad_heartbeat")

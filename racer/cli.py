@@ -76,6 +76,10 @@ def _setup_logging(verbose: bool = False) -> None:
         level=logging.DEBUG if verbose else logging.INFO,
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
+    # Never debug-log the HTTP libraries: botocore's request dumps carry the Authorization header (the access key
+    # id and a signature), and -v is what a user pastes into a bug report.
+    for name in ("botocore", "boto3", "s3transfer", "urllib3"):
+        logging.getLogger(name).setLevel(logging.INFO)
 
 
 def _stop_event_on_signals():
@@ -567,6 +571,30 @@ def bench_loop_cmd(
         )
     console.print(table)
     write_json(results, json_out)
+
+
+@bench_app.command("soak")
+def bench_soak_cmd(
+    duration: Annotated[str, typer.Option(help="Run time (90s, 10m, 2h).")] = "10m",
+    workers: Annotated[int, typer.Option(min=1, help="Rollout worker processes.")] = 2,
+    track: Annotated[str, typer.Option(help="Track name or .npy path.")] = "Straight_track",
+    stream_maxlen: Annotated[int, typer.Option(min=4, help="Cap of the segment stream, entries.")] = 16,
+    json_out: Annotated[str | None, typer.Option("--json", help="Write the result as JSON to F (- = stdout).")] = None,
+) -> None:
+    """A long racer train run sampling Redis memory, keys, the stream and each role's memory: is it bounded?"""
+    from racer.bench_soak import bench_soak
+    from racer.runconfig import parse_duration
+
+    try:
+        result = bench_soak(parse_duration(duration), workers, track, stream_maxlen)
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+    summary = {k: v for k, v in result.items() if k != "samples"}
+    table = Table("figure", "value")
+    for k, v in summary.items():
+        table.add_row(k, f"{v:.3f}" if isinstance(v, float) else str(v))
+    console.print(table)
+    write_json(result, json_out)
 
 
 @app.command("drive")

@@ -45,16 +45,31 @@ class EmbeddedRedis:
     can collide and nothing else on the machine can reach it.
     """
 
-    def __init__(self, port: int | None = None, maxmemory: str | None = None, binary: str | None = None) -> None:
+    def __init__(
+        self,
+        port: int | None = None,
+        maxmemory: str | None = None,
+        binary: str | None = None,
+        password: str | None = None,
+        tls: tuple[str, str] | None = None,
+    ) -> None:
+        """``password`` makes clients AUTH (``requirepass``); ``tls`` = (certificate, key) PEM files serves TLS
+        only, on ``port``, with the certificate as its own CA (clients are not asked for certificates)."""
         self._dir = tempfile.TemporaryDirectory(prefix="racer-redis-")
         self.port = port
         self.socket = Path(self._dir.name) / "redis.sock"
+        self.password, self.tls = password, tls
         args = [binary or find_redis_server(), "--save", "", "--appendonly", "no", "--dir", self._dir.name]
         args += ["--loglevel", "warning", "--logfile", str(Path(self._dir.name) / "redis.log")]
         if port is None:
             args += ["--port", "0", "--unixsocket", str(self.socket), "--unixsocketperm", "700"]
+        elif tls:
+            args += ["--port", "0", "--tls-port", str(port), "--bind", "127.0.0.1", "--tls-auth-clients", "no"]
+            args += ["--tls-cert-file", tls[0], "--tls-key-file", tls[1], "--tls-ca-cert-file", tls[0]]
         else:
             args += ["--port", str(port), "--bind", "127.0.0.1"]
+        if password:
+            args += ["--requirepass", password]
         if maxmemory:
             args += ["--maxmemory", maxmemory, "--maxmemory-policy", "noeviction"]
         self.proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -62,8 +77,13 @@ class EmbeddedRedis:
 
     @property
     def url(self) -> str:
-        """URL clients use to connect."""
-        return f"unix://{self.socket}" if self.port is None else f"redis://127.0.0.1:{self.port}/0"
+        """URL clients use to connect (with the password, if any, and the CA file for TLS)."""
+        auth = f":{self.password}@" if self.password else ""
+        if self.port is None:
+            return f"unix://{self.socket}" + (f"?password={self.password}" if self.password else "")
+        if self.tls:
+            return f"rediss://{auth}127.0.0.1:{self.port}/0?ssl_ca_certs={self.tls[0]}"
+        return f"redis://{auth}127.0.0.1:{self.port}/0"
 
     def _wait_ready(self, timeout: float = 10.0) -> None:
         deadline = time.monotonic() + timeout

@@ -115,6 +115,13 @@ class Trainer:
             self._checkpoint()
         # A predecessor killed mid-update leaves its "training" mark, which would hold the workers back.
         self.redis_outage.call("publish the policy", lambda: (self.redis.delete(self.keys.training), self._publish()))
+        log.info(
+            "run %s: policy v%d published; store %s, Redis %s",
+            self.run.run_id,
+            self.version,
+            self.runs.store.uri,
+            redact(self.opts.redis_url),
+        )
 
     def _write_run_files(self) -> None:
         for name, data in self.opts.run_files.items():
