@@ -184,11 +184,18 @@ class _Workers:
             used = self.restarts.get(k, 0)
             if p.returncode == USER_ERROR_EXIT or used >= self.max_restarts:
                 self.given_up.add(k)
-                console.print(f"[yellow]{msg}; not restarting", highlight=False)
+                console.print(f"[yellow]{msg}; not restarting", highlight=False, soft_wrap=True)
                 continue
             self.restarts[k] = used + 1
-            console.print(f"[yellow]{msg}; restarting it ({used + 1} of {self.max_restarts})", highlight=False)
+            console.print(
+                f"[yellow]{msg}; restarting it ({used + 1} of {self.max_restarts})", highlight=False, soft_wrap=True
+            )
             self.procs[k] = _spawn(_worker_args(run_id, k, self.common), log)
+
+    @property
+    def all_given_up(self) -> bool:
+        """Every worker slot has stopped for good: the run cannot make progress."""
+        return len(self.given_up) == len(self.procs)
 
     @property
     def alive(self) -> int:
@@ -217,6 +224,9 @@ def _watch(
                     tail = _last_line(workers.logs / "trainer.log")
                     raise RuntimeError(f"the trainer exited with code {trainer.returncode}: {tail}")
                 workers.check(run.run_id, console)
+                if workers.all_given_up:
+                    tail = _last_line(workers.logs / "worker-0.log")
+                    raise RuntimeError(f"every worker has stopped (worker 0: {tail.removeprefix('error: ')})")
                 try:
                     raw = r.get(keys.trainer_status)
                     status = json.loads(raw) if raw else status

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import signal
+import subprocess
+import sys
 import time
 
 import redis
@@ -219,3 +221,27 @@ def test_store_outage_during_a_checkpoint_upload_loses_nothing(tmp_path, redis_u
     finally:
         stop(worker, trainer)
         proxy.close()
+
+
+def test_a_reward_function_failing_mid_run_stops_racer_train_with_one_line(tmp_path, redis_url):
+    """User code that passes the start-up check and raises later: the worker stops on it, is not restarted
+    (a user error), and racer train ends at once naming the file, the error and the step."""
+    (tmp_path / "reward.py").write_text(
+        "def reward_function(params):\n"
+        "    if params['steps'] > 20:\n"
+        "        raise ValueError('boom at a late step')\n"
+        "    return 1.0\n"
+    )
+    cmd = ["train", "--workers", "1", "--track", "Straight_track", "--reward-fn", "reward.py", "--no-eval"]
+    cmd += ["--time-limit", "300s", "--redis", redis_url, "--run-id", "bad-reward"]
+    t0 = time.monotonic()
+    out = subprocess.run(
+        [sys.executable, "-m", "racer", *cmd], cwd=tmp_path, capture_output=True, text=True, timeout=300
+    )
+    assert out.returncode == 2, out.stdout + out.stderr
+    error = [line for line in out.stderr.splitlines() if line.startswith("error:")]
+    assert len(error) == 1 and "raised ValueError: boom at a late step" in error[0] and "at step" in error[0], error
+    # It names the worker's copy of the run's reward_function.py and the line in it.
+    assert "reward_function.py" in error[0] and "(line 3)" in error[0] and "Traceback" not in out.stdout + out.stderr
+    assert "not restarting" in out.stdout
+    assert time.monotonic() - t0 < 120, "the run should end when its only worker stops, not at the time limit"

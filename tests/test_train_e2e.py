@@ -76,6 +76,7 @@ def test_train_two_workers_learns_and_survives_a_killed_worker(tmp_path, redis_u
     switches = worker_switches(tmp_path / "runs" / run_id / "logs")
     assert any(max(v, default=0) >= 1 for v in switches.values()), switches  # workers picked up new policies
     assert "exited with code -9" in out  # the launcher reported the dead worker
+    assert "restarting it (1 of 3)" in out  # and started it again (it was killed, not a user error)
 
     rows = [json.loads(line) for line in runs.read_file(run_id, "metrics.jsonl").decode().splitlines()]
     random_progress = sum(r["progress"] for r in drive_random(EnvConfig(track="Straight_track"), 30, 1)) / 30
