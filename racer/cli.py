@@ -178,6 +178,8 @@ def train_cmd(
         status = run_train(run, opts, files, console)
     except _user_errors() as exc:
         fail(str(exc).splitlines()[0])
+    except typer.Exit:
+        raise
     except RuntimeError as exc:
         fail(str(exc))
     console.print(f"done: {status.get('iteration', 0)} iterations, {status.get('env_steps', 0)} env steps")
@@ -628,6 +630,19 @@ def drive_cmd(
     write_json(rows, json_out)
 
 
+def _given_value(exc: Exception) -> str:
+    """`` (got 'two')`` for a bad option value: typer's conversion messages do not repeat what the user typed."""
+    opts = getattr(getattr(exc, "param", None), "opts", None) or []
+    argv = sys.argv[1:]
+    for i, arg in enumerate(argv):
+        for opt in opts:
+            if arg == opt and i + 1 < len(argv):
+                return f" (got {argv[i + 1]!r})"
+            if arg.startswith(f"{opt}="):
+                return f" (got {arg.split('=', 1)[1]!r})"
+    return ""
+
+
 def main() -> None:
     """Entry point for ``racer`` and ``python -m racer``: a bad option or argument is one line too, not a box."""
     try:
@@ -635,7 +650,8 @@ def main() -> None:
     except typer.TyperException as exc:  # click's usage errors (typer vendors click)
         ctx = getattr(exc, "ctx", None)
         hint = f" (see {ctx.command_path} --help)" if ctx is not None else ""
-        Console(stderr=True).print(f"[bold red]error:[/] {exc.format_message()}{hint}", highlight=False, soft_wrap=True)
+        message = f"{exc.format_message()}{_given_value(exc)}{hint}"
+        Console(stderr=True).print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
         sys.exit(getattr(exc, "exit_code", 2))
     except typer.Abort:
         Console(stderr=True).print("aborted")
