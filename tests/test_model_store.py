@@ -17,6 +17,8 @@ from model_store import (
     S3Store,
     StoreError,
     StoreKeyError,
+    StoreUnavailable,
+    is_transient,
     list_models,
     open_store,
 )
@@ -260,6 +262,34 @@ def test_a_whole_checkpoint_is_never_overwritten(store):
     with pytest.raises(StoreError, match="already exists"):
         runs.save_checkpoint("run1", 1, b"other", {})
     assert runs.load_checkpoint("run1", 1)[0] == b"weights-1"
+
+
+def test_a_retried_save_with_the_same_metadata_finishes_it_and_newest_whole_sees_past_the_pointer(store):
+    runs = RunStore(store)
+    _save(runs, "run1", [1])
+    meta = {"env_steps": 7, "created": 1234.5}
+    runs.save_checkpoint("run1", 2, b"weights-2", meta)
+    runs.set_pointer("run1", "latest", 1)  # as if the writer died after the .json, before the pointer
+    store.put("runs/run1/checkpoints/000000003.pt", b"crashed before its json")
+    assert runs.newest_whole("run1") == 2  # whole beats the pointer; the orphan .pt does not count
+    assert runs.save_checkpoint("run1", 2, b"weights-2", meta)["env_steps"] == 7  # the retry completes it
+    assert runs.pointer("run1", "latest")["version"] == 2
+    with pytest.raises(StoreError, match="already exists"):
+        runs.save_checkpoint("run1", 2, b"weights-2", {**meta, "env_steps": 8})  # different: not a retry
+    assert runs.newest_whole("empty-run") is None
+
+
+def test_an_unreachable_endpoint_is_transient_and_a_missing_key_or_bucket_is_not(s3_endpoint):
+    down = S3Store(BUCKET, "", f"http://127.0.0.1:{_free_port()}")
+    with pytest.raises(StoreUnavailable) as unreachable:
+        down.get("k")
+    assert is_transient(unreachable.value)
+    up = S3Store(BUCKET, f"t-{uuid.uuid4().hex}", s3_endpoint)
+    with pytest.raises(StoreKeyError) as missing:
+        up.get("k")
+    with pytest.raises(StoreError) as no_bucket:
+        S3Store("no-such-bucket-xyz", "", s3_endpoint).put("k", b"x")
+    assert not is_transient(missing.value) and not is_transient(no_bucket.value)
 
 
 def test_unserializable_meta_writes_nothing(store):
