@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 
 from racer.runconfig import build_run
+from rollout_worker.worker import RolloutWorker, WorkerOptions
+from trainer.process import Trainer, TrainerOptions
 
 FAST_HP = {"batch_size": 32, "num_epochs": 1, "num_episodes_between_training": 2, "lr": 0.001, "discount_factor": 0.99}
 
@@ -181,3 +183,15 @@ def rss_mb(pid: int) -> float:
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) / 1024.0
     raise AssertionError(f"no VmRSS for pid {pid}")
+
+
+def trainer_and_worker(url: str, store: str, tmp: Path, run_id: str) -> tuple[Trainer, RolloutWorker]:
+    """An in-process trainer (started, v0 published) and worker (started) of a small run on Straight_track."""
+    (tmp / "hp.json").write_text(json.dumps(FAST_HP))
+    run, files = build_run(run_id, track="Straight_track", hyperparams=str(tmp / "hp.json"))
+    run = run.model_copy(update={"segment_steps": 8})
+    trainer = Trainer(run, TrainerOptions(url, store, run_files=files, tensorboard=False))
+    trainer.start()
+    worker = RolloutWorker(WorkerOptions(run_id, url, store, worker_index=0))
+    worker.start()
+    return trainer, worker

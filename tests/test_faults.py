@@ -7,10 +7,13 @@ reported by name, and the run goes on.
 from __future__ import annotations
 
 import json
+import logging
 import signal
 import subprocess
 import sys
+import threading
 import time
+from functools import partial
 
 import redis
 import torch
@@ -27,6 +30,7 @@ from tests.faults import (
     spawn_worker,
     stop,
     store_args,
+    trainer_and_worker,
     wait_for,
     write_run,
 )
@@ -245,3 +249,29 @@ def test_a_reward_function_failing_mid_run_stops_racer_train_with_one_line(tmp_p
     assert "reward_function.py" in error[0] and "(line 3)" in error[0] and "Traceback" not in out.stdout + out.stderr
     assert "not restarting" in out.stdout
     assert time.monotonic() - t0 < 120, "the run should end when its only worker stops, not at the time limit"
+
+
+def test_a_full_redis_makes_workers_wait_until_the_trainer_frees_it(tmp_path, caplog):
+    """Redis at its maxmemory (noeviction) refuses XADD; the worker retries the whole segment, and the trainer's
+    reads trim what they consumed, so every segment arrives once and none is dropped."""
+    server = EmbeddedRedis(port=free_port(), maxmemory="4mb")
+    try:
+        trainer, worker = trainer_and_worker(server.url, str(tmp_path / "store"), tmp_path, "oom")
+        worker.run = worker.run.model_copy(update={"stream_maxlen": 1000})  # so that only memory limits the stream
+        segments = [worker.collect() for _ in range(26)]  # ~150 KB each: more than 4 MB holds
+        caplog.set_level(logging.WARNING, "racer.worker")
+        pusher = threading.Thread(
+            target=lambda: [worker.redis_outage.call("push a segment", partial(worker.push, s)) for s in segments]
+        )
+        pusher.start()
+        wait_for(lambda: "maxmemory" in caplog.text, 60, "Redis to refuse a segment for lack of memory")
+        received = 0
+        deadline = time.monotonic() + 60
+        while received < len(segments) and time.monotonic() < deadline:
+            received += trainer.read(block_ms=200)
+        pusher.join(10)
+        assert received == len(segments) and worker.redis_outage.outages >= 1
+        assert not trainer.stats.dropped, trainer.stats.dropped
+        worker.close()
+    finally:
+        server.stop()

@@ -29,8 +29,7 @@ from racer.embedded_redis import EmbeddedRedis, free_port
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
 from tests.conftest import S3_BUCKET
-from tests.faults import FAST_HP
-from trainer.process import Trainer, TrainerOptions
+from tests.faults import FAST_HP, trainer_and_worker
 
 PASSWORD = "s3cret-Pw-123"
 
@@ -69,17 +68,6 @@ def self_signed(tmp: Path) -> tuple[str, str]:
         key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption())
     )
     return str(cert_path), str(key_path)
-
-
-def trainer_and_worker(url: str, store: str, tmp: Path, run_id: str) -> tuple[Trainer, RolloutWorker]:
-    (tmp / "hp.json").write_text(json.dumps(FAST_HP))
-    run, files = build_run(run_id, track="Straight_track", hyperparams=str(tmp / "hp.json"))
-    run = run.model_copy(update={"segment_steps": 8})
-    trainer = Trainer(run, TrainerOptions(url, store, run_files=files, tensorboard=False))
-    trainer.start()
-    worker = RolloutWorker(WorkerOptions(run_id, url, store, worker_index=0))
-    worker.start()
-    return trainer, worker
 
 
 @pytest.mark.parametrize("tls", [False, True], ids=["password", "password+tls"])
