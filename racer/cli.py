@@ -101,6 +101,14 @@ EndpointOpt = Annotated[
 ]
 RunIdOpt = Annotated[str, typer.Option("--run-id", envvar="RACER_RUN_ID", help="Run id.")]
 RedisOpt = Annotated[str, typer.Option("--redis", envvar="RACER_REDIS_URL", help="redis://[:password@]host:port/db")]
+OutageOpt = Annotated[
+    str,
+    typer.Option(
+        "--outage-timeout",
+        envvar="RACER_OUTAGE_TIMEOUT",
+        help="Ride out a Redis or store outage this long before exiting (90s, 10m).",
+    ),
+]
 CarCalibrationOpt = Annotated[
     Path | None, typer.Option("--car-calibration", help="car.json from racer calibrate: the car to simulate.")
 ]
@@ -200,6 +208,7 @@ def trainer_cmd(
     resume: Annotated[bool, typer.Option("--resume", envvar="RACER_RESUME")] = False,
     time_limit: Annotated[str | None, typer.Option("--time-limit", envvar="RACER_TIME_LIMIT")] = None,
     threads: Annotated[int, typer.Option(min=1, envvar="RACER_TRAINER_THREADS", help="PyTorch threads.")] = 1,
+    outage_timeout: OutageOpt = "10m",
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
     """Run the PPO trainer role alone (for docker compose and multi-machine runs)."""
@@ -239,6 +248,7 @@ def trainer_cmd(
             parse_duration(time_limit) if time_limit else None,
             threads,
             run_files,
+            outage_s=parse_duration(outage_timeout),
         )
         run_trainer(run, opts, _stop_event_on_signals())
     except _user_errors() as exc:
@@ -253,6 +263,7 @@ def worker_cmd(
     s3_endpoint: EndpointOpt = None,
     index: Annotated[int | None, typer.Option(envvar="RACER_WORKER_INDEX", help="Worker index (seed, track).")] = None,
     worker_id: Annotated[str, typer.Option("--worker-id", envvar="RACER_WORKER_ID")] = "",
+    outage_timeout: OutageOpt = "10m",
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
     """Run one rollout worker (for docker compose and workers on other machines)."""
@@ -261,7 +272,12 @@ def worker_cmd(
     _setup_logging(verbose)
     try:
         # Without --index, the worker takes the next free index from Redis (scaled compose workers: 0, 1, …).
-        run_worker(WorkerOptions(run_id, redis_url, store, s3_endpoint, index, worker_id), _stop_event_on_signals())
+        from racer.runconfig import parse_duration
+
+        opts = WorkerOptions(
+            run_id, redis_url, store, s3_endpoint, index, worker_id, outage_s=parse_duration(outage_timeout)
+        )
+        run_worker(opts, _stop_event_on_signals())
     except _user_errors() as exc:
         fail(str(exc).splitlines()[0])
 
