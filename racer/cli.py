@@ -157,6 +157,8 @@ def train_cmd(
             run = RunConfig.model_validate_json(runs.read_file(rid, "config.json"))
             files: dict[str, bytes] = {}
         else:
+            if RunStore(open_store(store, s3_endpoint)).newest_whole(rid) is not None:
+                fail(f"run {rid!r} already exists in {store}: add --resume to continue it, or choose another --run-id")
             run, files = build_run(
                 rid,
                 track,
@@ -240,6 +242,15 @@ def trainer_cmd(
                 str(action_space) if action_space else None,
                 str(hyperparams) if hyperparams else None,
             )
+        runs = RunStore(open_store(store, s3_endpoint))
+        if not resume and runs.newest_whole(run.run_id) is not None:
+            # A restarted trainer (compose's restart: on-failure, a crashed host) continues its run, never restarts it.
+            import logging
+
+            logging.getLogger("racer.trainer").warning(
+                "run %s already has checkpoints in %s: continuing it (as --resume)", run.run_id, store
+            )
+            resume, run = True, RunConfig.model_validate_json(runs.read_file(run.run_id, "config.json"))
         opts = TrainerOptions(
             redis_url,
             store,

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from model_store import RunStore, open_store
 from tests.conftest import S3_BUCKET
 
 FILES = {
@@ -121,3 +122,13 @@ def test_missing_bucket_and_missing_credentials_are_one_line(workdir, s3_server)
     }
     ls = ["models", "ls", "--store", f"s3://{S3_BUCKET}", "--s3-endpoint", s3_server]
     assert_one_line_error(racer(ls, workdir, no_creds), "no S3 credentials found")
+
+
+def test_racer_train_will_not_start_over_an_existing_run(workdir):
+    runs = RunStore(open_store(str(workdir)))
+    runs.save_checkpoint("taken", 0, b"weights", {"env_steps": 5})
+    before = sorted(p.relative_to(workdir) for p in (workdir / "runs").rglob("*"))
+    out = racer(["train", "--run-id", "taken", "--time-limit", "60s"], workdir)
+    assert_one_line_error(out, "run 'taken' already exists in .: add --resume to continue it")
+    assert sorted(p.relative_to(workdir) for p in (workdir / "runs").rglob("*")) == before
+    assert runs.load_checkpoint("taken", "latest")[0] == b"weights"

@@ -152,13 +152,15 @@ def test_trainer_killed_mid_checkpoint_upload_resumes_with_its_state(tmp_path, r
         whole = runs.newest_whole(run_id)
         assert whole == pointed + 1, (pointed, whole)
         proxy.up()
-        trainer = spawn_trainer(config, redis_url, trainer_store, log, resume=True)
+        # Restarted as compose would restart it, without --resume: a trainer never starts its run over.
+        trainer = spawn_trainer(config, redis_url, trainer_store, log)
         wait_for(
             lambda: (runs.pointer(run_id, "latest") or {}).get("version", 0) >= whole + 1,
             180,
             "updates",
             alive=(trainer,),
         )
+        assert "already has checkpoints" in log.read_text() and "continuing it (as --resume)" in log.read_text()
         assert f"version {whole} is whole: resuming from it" in log.read_text()
         versions = [c["version"] for c in runs.list_checkpoints(run_id)]
         assert versions == list(range(versions[-1] + 1)), "every version is whole, none skipped"
