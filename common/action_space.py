@@ -7,12 +7,13 @@ the DeepRacer simapp: steering to ±30°, speed to [0.1, 4] m/s.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from common.jsonfile import read_json_object
 
 MAX_STEERING_DEG = 30.0
 MIN_SPEED_MPS = 0.1
@@ -140,14 +141,7 @@ def default_action_space() -> ActionSpace:
 def load_action_space(path: str | Path) -> ActionSpace:
     """Read a DeepRacer ``model_metadata.json``; raise ActionSpaceError naming the file if it is unusable."""
     p = Path(path)
-    try:
-        data = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise ActionSpaceError(f"action space file {str(p)!r} does not exist") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ActionSpaceError(f"action space file {str(p)!r} is not valid JSON: {exc}") from None
-    if not isinstance(data, dict):
-        raise ActionSpaceError(f"action space file {str(p)!r}: expected a JSON object")
+    data = read_json_object(p, "action space file", ActionSpaceError)
     if "action_space_type" not in data:  # older DeepRacer files have no type: infer it
         data["action_space_type"] = "continuous" if isinstance(data.get("action_space"), dict) else "discrete"
     try:

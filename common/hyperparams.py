@@ -14,6 +14,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from common.jsonfile import read_json_object
+
 # The keys DeepRacer itself writes, in the order its console writes them.
 DEEPRACER_KEYS: tuple[str, ...] = (
     "batch_size",
@@ -120,14 +122,7 @@ def load_hyperparameters(path: str | Path) -> Hyperparameters:
     """
     p = Path(path)
     where = f"hyperparameters file {str(p)!r}"
-    try:
-        data = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise HyperparametersError(f"{where} does not exist") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise HyperparametersError(f"{where} is not valid JSON: {exc}") from None
-    if not isinstance(data, dict):
-        raise HyperparametersError(f"{where}: expected a JSON object, got {type(data).__name__}")
+    data = read_json_object(p, "hyperparameters file", HyperparametersError)
     try:
         return Hyperparameters.model_validate(data)
     except ValidationError as exc:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 
@@ -12,6 +11,7 @@ from common.action_space import default_action_space, load_action_space
 from common.car_calibration import CarCalibration, load_calibration
 from common.config import EnvConfig, RandomizationConfig, RunConfig
 from common.hyperparams import Hyperparameters, load_hyperparameters
+from common.jsonfile import read_json_object
 from common.policy import PolicyConfig, network_from_metadata
 from sim.reward import check_reward_function, example_path, load_reward_function
 from sim.track import load_track
@@ -67,12 +67,7 @@ class RandomizationFileError(ValueError):
 def load_randomization(path: str | Path) -> RandomizationConfig:
     """Read a randomization JSON file; RandomizationFileError naming the file and the bad field."""
     p = Path(path)
-    try:
-        data = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise RandomizationFileError(f"randomization file {str(p)!r} does not exist") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise RandomizationFileError(f"randomization file {str(p)!r} is not valid JSON: {exc}") from None
+    data = read_json_object(p, "randomization file", RandomizationFileError)
     try:
         return RandomizationConfig.model_validate(data)
     except ValidationError as exc:
