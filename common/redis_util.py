@@ -56,12 +56,13 @@ STARTUP_WAIT_S = 10.0
 def connect_checked(url: str, wait_s: float = STARTUP_WAIT_S) -> redis.Redis:
     """``connect`` plus a PING, so that a wrong host, port, password or TLS setting fails at start with one line
     naming the URL (password hidden), instead of at the first command deep inside a run."""
-    client = connect(url)
+    probe = connect(url, retries=0)  # one attempt per try: a TLS mismatch hangs a full socket timeout each time
     deadline = time.monotonic() + wait_s
     while True:
         try:
-            client.ping()
-            return client
+            probe.ping()
+            probe.close()
+            return connect(url)
         except redis.AuthenticationError as exc:
             raise RedisUrlError(f"Redis at {redact(url)} refused the connection: {_reason(exc)}") from None
         except redis.ResponseError as exc:  # NOAUTH and friends come back as plain errors from some servers
