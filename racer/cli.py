@@ -378,6 +378,67 @@ def eval_cmd(
     write_json(summary, json_out)
 
 
+@app.command("export")
+def export_cmd(
+    run_id: Annotated[str, typer.Option("--run-id", help="Run id.")],
+    out: Annotated[
+        Path, typer.Option("-o", "--out", help="Where to write the model (model_metadata.json goes beside).")
+    ],
+    store: StoreOpt = ".",
+    s3_endpoint: EndpointOpt = None,
+    checkpoint: Annotated[str, typer.Option(help="best, latest or a version number.")] = "best",
+    fmt: Annotated[str, typer.Option("--format", help="Export format: onnx.")] = "onnx",
+    json_out: Annotated[
+        str | None, typer.Option("--json", help="Write what was exported as JSON to F (- = stdout).")
+    ] = None,
+) -> None:
+    """Export a checkpoint's policy for a car (ONNX), with the run's model_metadata.json beside it."""
+    from deploy.export import export_onnx
+    from model_store import RunStore, open_store
+
+    if fmt != "onnx":
+        fail(f"--format {fmt!r} is not supported: use onnx")
+    try:
+        runs = RunStore(open_store(store, s3_endpoint))
+        if checkpoint == "best" and runs.pointer(run_id, "best") is None:
+            checkpoint = "latest"  # a run without an evaluator has no best: its newest policy is the one to drive
+        result = export_onnx(runs, run_id, checkpoint, out)
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+    console.print(f"exported run {run_id} v{result['version']} to {result['model']} (+ {result['model_metadata']})")
+    write_json(result, json_out)
+
+
+@app.command("car")
+def car_cmd(
+    model: Annotated[Path, typer.Option(help="model.onnx from racer export (model_metadata.json beside it).")],
+    source: Annotated[str, typer.Option(help="Camera index (0) or a video file / image sequence (frames/%04d.png).")],
+    vehicle: Annotated[Path | None, typer.Option(help="Vehicle calibration JSON (default: the defaults).")] = None,
+    out: Annotated[str, typer.Option(help="CSV of motor commands, one row per frame (- = stdout).")] = "-",
+    max_frames: Annotated[int | None, typer.Option(min=1, help="Stop after N frames.")] = None,
+    json_out: Annotated[
+        str | None, typer.Option("--json", help="Write frames and rates as JSON to F (- = stdout).")
+    ] = None,
+) -> None:
+    """The on-car runtime: camera frames → policy (ONNX, one CPU thread) → vehicle calibration → motor commands."""
+    from dataclasses import asdict
+
+    from deploy.runtime import CsvSink, Policy, drive
+    from deploy.vehicle import VehicleCalibration, load_vehicle_calibration
+
+    try:
+        calibration = load_vehicle_calibration(vehicle) if vehicle else VehicleCalibration()
+        policy = Policy(model)
+        result = drive(policy, source, calibration, CsvSink(out), max_frames)
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+    Console(stderr=True).print(
+        f"{result.frames} frames at {result.fps:.1f} frames/s (inference {result.infer_ms_median:.2f} ms, "
+        f"loop {result.loop_ms_median:.2f} ms, medians)"
+    )
+    write_json(asdict(result), json_out)
+
+
 @app.command("calibrate")
 def calibrate_cmd(
     logs: Annotated[

@@ -1,0 +1,216 @@
+"""Deploy: export to ONNX (parity with torch), the on-car runtime's preprocessing (identical to training), the
+vehicle calibration (hand-computed outputs), and the runtime driven by a video recorded in our simulator."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+
+from common.action_space import ActionSpace
+from common.car_calibration import CarCalibration
+from common.config import EnvConfig
+from common.policy import FrameStack, action_space_spec, build_policy, checkpoint_to_bytes
+from deploy.export import ExportError, export_onnx, load_policy, model_info
+from deploy.runtime import Policy, preprocess
+from deploy.vehicle import (
+    VehicleCalibration,
+    VehicleCalibrationError,
+    load_vehicle_calibration,
+    steering_output,
+    throttle_output,
+)
+from model_store import RunStore, open_store
+from racer.runconfig import build_run
+from sim.env import RacerEnv
+
+CONTINUOUS = {
+    "action_space_type": "continuous",
+    "action_space": {"steering_angle": {"low": -30, "high": 30}, "speed": {"low": 0.5, "high": 2.0}},
+}
+
+
+def make_run(tmp: Path, run_id: str, action_space: dict | None = None, stack_size: int = 1) -> RunStore:
+    """A run in a local store with one checkpoint: a seeded policy whose head is scaled up, so that its choices
+    differ clearly from frame to frame (a fresh policy is nearly uniform and its argmax would be a coin toss)."""
+    space = None
+    if action_space:
+        (tmp / "space.json").write_text(json.dumps(action_space))
+        space = str(tmp / "space.json")
+    (tmp / "hp.json").write_text(json.dumps({"stack_size": stack_size}))
+    run, files = build_run(run_id, track="reinvent_base", action_space=space, hyperparams=str(tmp / "hp.json"))
+    runs = RunStore(open_store(str(tmp / "store")))
+    for name, data in files.items():
+        runs.write_file(run_id, name, data)
+    runs.write_file(run_id, "config.json", run.model_dump_json())
+    torch.manual_seed(3)
+    actions = ActionSpace.model_validate_json(files["model_metadata.json"])
+    model = build_policy((120, 160, stack_size), action_space_spec(actions), run.policy)
+    with torch.no_grad():
+        model.policy_head.weight.mul_(300.0)
+    runs.save_checkpoint(run_id, 0, checkpoint_to_bytes(model.state_dict()), {"env_steps": 0})
+    return runs
+
+
+def sim_frames(n: int, seed: int = 0) -> list[np.ndarray]:
+    """Camera frames (120, 160, 1) from our simulator, driving straight-ish from a few starts."""
+    env = RacerEnv(config=EnvConfig(track="reinvent_base"))
+    frames, _ = [], None
+    obs, _ = env.reset(seed=seed)
+    for i in range(n):
+        frames.append(obs)
+        obs, _, term, trunc, _ = env.step(i % 3 + 3)
+        if term or trunc:
+            obs, _ = env.reset()
+    env.close()
+    return frames
+
+
+@pytest.mark.parametrize(("space", "stack"), [(None, 1), (CONTINUOUS, 2)], ids=["discrete", "continuous-stack2"])
+def test_onnx_export_matches_torch(tmp_path, space, stack):
+    runs = make_run(tmp_path, "exp", space, stack)
+    result = export_onnx(runs, "exp", "latest", tmp_path / "out" / "model.onnx")
+    assert (tmp_path / "out" / "model_metadata.json").read_bytes() == runs.read_file("exp", "model_metadata.json")
+    assert model_info(result["model"])["stack_size"] == stack and result["version"] == 0
+    model, *_ = load_policy(runs, "exp", "latest")
+    frames = sim_frames(12)
+    obs = np.stack([np.concatenate(frames[i : i + stack], axis=-1) for i in range(10)])  # (10, 120, 160, stack)
+    session = ort.InferenceSession(result["model"], providers=["CPUExecutionProvider"])
+    onnx_params, onnx_value = session.run(None, {"obs": obs})
+    with torch.no_grad():
+        params, value = model(torch.from_numpy(obs))
+    expected = torch.softmax(params, -1) if space is None else params
+    # Float32 sums in another order: probabilities agree to 1e-5, a continuous mean to 1e-4 degrees or m/s.
+    np.testing.assert_allclose(onnx_params, expected.numpy(), rtol=1e-5, atol=1e-5 if space is None else 1e-4)
+    np.testing.assert_allclose(onnx_value, value.numpy(), rtol=1e-5, atol=1e-4)
+    if space is None:  # the greedy actions agree, and they are not all the same action
+        assert (onnx_params.argmax(1) == expected.numpy().argmax(1)).all()
+        assert len(set(onnx_params.argmax(1))) > 1
+
+
+def test_the_runtime_builds_the_same_tensor_as_training_from_the_same_frame():
+    frames = sim_frames(4)
+    stack_train, stack_car = FrameStack(2), FrameStack(2)
+    for i, frame in enumerate(frames):
+        bgr = cv2.cvtColor(frame[..., 0], cv2.COLOR_GRAY2BGR)  # what a camera or a video hands the runtime
+        big = cv2.resize(bgr, (640, 480), interpolation=cv2.INTER_NEAREST)  # a camera at 4× the resolution
+        for delivered in (bgr, big, frame):
+            np.testing.assert_array_equal(preprocess(delivered), frame[..., 0])
+        train = stack_train.reset(frame) if i == 0 else stack_train.push(frame)
+        car_frame = preprocess(big)[..., None]
+        car = stack_car.reset(car_frame) if i == 0 else stack_car.push(car_frame)
+        assert car.dtype == train.dtype == np.uint8
+        np.testing.assert_array_equal(car, train)
+
+
+def test_the_mujoco_camera_path_matches_too():
+    """With the MuJoCo camera the env converts an RGB render with OpenCV; the runtime converts the camera's BGR."""
+    try:
+        env = RacerEnv(config=EnvConfig(track="reinvent_base", camera="mujoco"))
+        obs, _ = env.reset(seed=1)
+        rgb = env.camera.render(env.physics.pose, color=True)
+    except Exception as exc:  # no OpenGL context on this machine or in this process
+        pytest.skip(f"MuJoCo rendering is unavailable here: {type(exc).__name__}: {exc}")
+    env.close()
+    np.testing.assert_array_equal(preprocess(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)), obs[..., 0])
+
+
+def test_vehicle_calibration_maps_actions_to_hand_computed_outputs(tmp_path):
+    cal = VehicleCalibration.model_validate(
+        {
+            "steering": {"center": 1500, "left": 1900, "right": 1100, "max_angle_deg": 30},
+            "throttle": {"stop": 1500, "full": 1800, "curve": [[0, 0], [2, 0.4], [4, 1.0]], "max_speed_pct": 50},
+        }
+    )
+    assert steering_output(cal, 0) == 1500
+    assert steering_output(cal, 15) == pytest.approx(1700)  # half of the left travel
+    assert steering_output(cal, -30) == pytest.approx(1100)
+    assert steering_output(cal, -45) == pytest.approx(1100)  # beyond full lock: clipped
+    assert throttle_output(cal, 1.0) == pytest.approx(1500 + 0.2 * 0.5 * 300)  # curve 0.2, half speed: 1530
+    assert throttle_output(cal, 3.0) == pytest.approx(1500 + 0.7 * 0.5 * 300)  # 1605
+    # Fitted effects of this car: it steers 0.8 × the command + 1°, and runs at 0.5 × the commanded speed.
+    effects = CarCalibration.from_values(
+        {"steering_gain": {"gain": 0.8}, "steering_offset": {"offset_deg": 1.0}, "speed_gain": {"gain": 0.5}}
+    )
+    cal = cal.model_copy(update={"car": effects})
+    assert steering_output(cal, 9.0) == pytest.approx(1500 + (10.0 / 30) * 400)  # asks (9 - 1) / 0.8 = 10°
+    assert throttle_output(cal, 1.0) == pytest.approx(1500 + 0.4 * 0.5 * 300)  # asks 2 m/s: curve 0.4
+
+    for text, where in (
+        ('{"steering": {"max_angle_deg": -5}}', "steering.max_angle_deg"),
+        ('{"throttle": {"curve": [[1, 0.5], [1, 0.6]]}}', "throttle"),
+        ('{"steer": {}}', "steer"),
+        ("[1]", "expected a JSON object"),
+    ):
+        (tmp_path / "v.json").write_text(text)
+        with pytest.raises(VehicleCalibrationError, match=where) as err:
+            load_vehicle_calibration(tmp_path / "v.json")
+        assert "v.json" in str(err.value) and "\n" not in str(err.value)
+
+
+def record_sim_video(runs: RunStore, path: Path, steps: int) -> list[int]:
+    """Drive our simulator greedily with the torch policy, record its camera losslessly (FFV1), return the actions."""
+    model, *_ = load_policy(runs, "car", "latest")
+    env = RacerEnv(config=EnvConfig(track="reinvent_base"))
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 15, (160, 120), isColor=False)
+    assert writer.isOpened(), "OpenCV's FFV1 (lossless) encoder should be available"
+    obs, _ = env.reset(seed=5)
+    actions = []
+    for _ in range(steps):
+        writer.write(obs[..., 0])
+        action = int(model.act_numpy(obs[None], deterministic=True)[0][0])
+        actions.append(action)
+        obs, _, term, trunc, _ = env.step(action)
+        if term or trunc:
+            obs, _ = env.reset()
+    writer.release()
+    env.close()
+    return actions
+
+
+def test_the_runtime_on_a_sim_video_commands_what_the_policy_chose(tmp_path):
+    runs = make_run(tmp_path, "car")
+    model = tmp_path / "model.onnx"
+    export_onnx(runs, "car", "latest", model)
+    actions = record_sim_video(runs, tmp_path / "drive.avi", 90)
+    assert len(set(actions)) >= 3, actions  # the policy really steers differently along the way
+    vehicle = {"steering": {"center": 1450, "left": 1850, "right": 1000}, "throttle": {"max_speed_pct": 80}}
+    (tmp_path / "vehicle.json").write_text(json.dumps(vehicle))
+    out = subprocess.run(
+        [sys.executable, "-m", "racer", "car", "--model", str(model), "--source", str(tmp_path / "drive.avi"),
+         "--vehicle", str(tmp_path / "vehicle.json"), "--out", str(tmp_path / "cmds.csv"), "--json", "-"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["frames"] == len(actions)
+    rows = list(csv.DictReader((tmp_path / "cmds.csv").open()))
+    space = ActionSpace.model_validate_json(runs.read_file("car", "model_metadata.json"))
+    cal = VehicleCalibration.model_validate(vehicle)
+    assert [int(r["action"]) for r in rows] == actions
+    for row, action in zip(rows, actions, strict=True):
+        steering, speed = space.command(action)
+        assert float(row["steering_out"]) == pytest.approx(steering_output(cal, steering))
+        assert float(row["throttle_out"]) == pytest.approx(throttle_output(cal, speed))
+
+
+def test_runtime_and_export_refuse_bad_input_in_one_line(tmp_path):
+    (tmp_path / "not.onnx").write_bytes(b"not a model")
+    with pytest.raises(ExportError, match="not.onnx"):
+        Policy(tmp_path / "not.onnx")
+    for args, expected in (
+        (["car", "--model", "missing.onnx", "--source", "x.avi"], "missing.onnx"),
+        (["car", "--model", "not.onnx", "--source", "x.avi"], "not an ONNX model"),
+        (["export", "--run-id", "nope", "-o", "m.onnx"], "run 'nope' does not exist"),
+        (["export", "--run-id", "nope", "-o", "m.onnx", "--format", "tflite"], "--format 'tflite'"),
+    ):
+        out = subprocess.run([sys.executable, "-m", "racer", *args], cwd=tmp_path, capture_output=True, text=True)
+        assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
+        assert expected in out.stderr and "Traceback" not in out.stderr
