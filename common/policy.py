@@ -26,7 +26,6 @@ from __future__ import annotations
 import io
 import math
 import pickle
-from collections import deque
 from typing import Any, Literal
 
 import numpy as np
@@ -223,31 +222,6 @@ class ActorCritic(nn.Module):
         params, value = self(obs)
         dist = self._dist(params)
         return dist.log_prob(actions), dist.entropy(), value
-
-
-class FrameStack:
-    """The last ``n`` camera frames as channels, as DeepRacer's ``stack_size`` does (the network's input).
-
-    Here because rollout workers and the evaluator (trainer side) must build the same observation."""
-
-    def __init__(self, n: int) -> None:
-        self.n = n
-        self.frames: deque = deque(maxlen=n)
-
-    def reset(self, frame: np.ndarray) -> np.ndarray:
-        """Fill the stack with the first frame of an episode."""
-        for _ in range(self.n):
-            self.frames.append(frame)
-        return self.get()
-
-    def push(self, frame: np.ndarray) -> np.ndarray:
-        """Add a frame and return the stacked observation."""
-        self.frames.append(frame)
-        return self.get()
-
-    def get(self) -> np.ndarray:
-        """(H, W, n) uint8, oldest frame first."""
-        return np.concatenate(list(self.frames), axis=-1) if self.n > 1 else self.frames[-1]
 
 
 def build_policy(

@@ -10,24 +10,16 @@ run and version it came from and how to build its input.
 
 from __future__ import annotations
 
-import json
 import warnings
 from pathlib import Path
 
-import onnx
 import torch
 
 from common.action_space import ActionSpace
 from common.config import RunConfig
 from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
+from deploy.model_file import OBS_HEIGHT, OBS_WIDTH, stamp
 from model_store import RunStore
-
-OBS_HEIGHT, OBS_WIDTH = 120, 160
-"""The camera frame the policy was trained on: 160×120 grayscale."""
-
-
-class ExportError(ValueError):
-    """A checkpoint that cannot be exported; the message names the run and checkpoint."""
 
 
 class _Exported(torch.nn.Module):
@@ -88,26 +80,6 @@ def export_onnx(runs: RunStore, run_id: str, checkpoint: str | int, out: str | P
         "action_kind": model.action_kind,
         "preprocess": "grayscale (OpenCV BGR2GRAY), resize to 160x120 (INTER_AREA), uint8, oldest frame first",
     }
-    _stamp(out, info)
+    stamp(out, info)
     (out.parent / "model_metadata.json").write_bytes(metadata)
     return {**info, "model": str(out), "model_metadata": str(out.parent / "model_metadata.json")}
-
-
-def _stamp(path: Path, info: dict) -> None:
-    """Put ``info`` into the ONNX file's metadata properties (key ``racer``, JSON), so the model describes itself."""
-    proto = onnx.load(str(path))
-    entry = proto.metadata_props.add()
-    entry.key, entry.value = "racer", json.dumps(info)
-    onnx.save(proto, str(path))
-
-
-def model_info(path: str | Path) -> dict:
-    """The ``racer`` metadata of an exported model (ExportError if it has none)."""
-    try:
-        proto = onnx.load(str(path), load_external_data=False)
-    except Exception as exc:  # protobuf's DecodeError and friends: whatever it is, it is not a model we can run
-        raise ExportError(f"{str(path)!r} is not an ONNX model ({type(exc).__name__})") from None
-    for entry in proto.metadata_props:
-        if entry.key == "racer":
-            return json.loads(entry.value)
-    raise ExportError(f"{str(path)!r} is not a model exported by racer export (no 'racer' metadata)")

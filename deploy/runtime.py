@@ -25,8 +25,8 @@ import numpy as np
 import onnxruntime as ort
 
 from common.action_space import ActionSpace
-from common.policy import FrameStack
-from deploy.export import OBS_HEIGHT, OBS_WIDTH, model_info
+from common.framestack import FrameStack
+from deploy.model_file import OBS_HEIGHT, OBS_WIDTH, model_info
 from deploy.vehicle import MotorCommand, VehicleCalibration, motor_command
 
 

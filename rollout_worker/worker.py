@@ -22,8 +22,9 @@ import numpy as np
 import torch
 
 from common.config import EnvConfig, RunConfig
+from common.framestack import FrameStack
 from common.keys import Keys
-from common.policy import ActorCritic, FrameStack, action_space_spec, build_policy, checkpoint_from_bytes
+from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
 from common.redis_util import connect_checked, redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient

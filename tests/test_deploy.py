@@ -18,8 +18,10 @@ import torch
 from common.action_space import ActionSpace
 from common.car_calibration import CarCalibration
 from common.config import EnvConfig
-from common.policy import FrameStack, action_space_spec, build_policy, checkpoint_to_bytes
-from deploy.export import ExportError, export_onnx, load_policy, model_info
+from common.framestack import FrameStack
+from common.policy import action_space_spec, build_policy, checkpoint_to_bytes
+from deploy.export import export_onnx, load_policy
+from deploy.model_file import ExportError, model_info
 from deploy.runtime import Policy, preprocess
 from deploy.vehicle import (
     VehicleCalibration,
@@ -214,3 +216,9 @@ def test_runtime_and_export_refuse_bad_input_in_one_line(tmp_path):
         out = subprocess.run([sys.executable, "-m", "racer", *args], cwd=tmp_path, capture_output=True, text=True)
         assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
         assert expected in out.stderr and "Traceback" not in out.stderr
+
+
+def test_the_runtime_needs_no_torch():
+    """A car carries onnxruntime and OpenCV, not PyTorch: importing the runtime must not import torch."""
+    code = "import sys, deploy.runtime, deploy.vehicle; sys.exit('torch' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0

@@ -26,8 +26,9 @@ import torch
 
 from common.action_space import default_action_space, load_action_space
 from common.config import EnvConfig, RunConfig
+from common.framestack import FrameStack
 from common.keys import Keys
-from common.policy import ActorCritic, FrameStack, action_space_spec, build_policy, checkpoint_from_bytes
+from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
 from common.protocol import PolicyVersion, ProtocolError
 from common.redis_util import connect_checked, redact
 from common.retry import Outage, redis_transient

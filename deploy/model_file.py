@@ -1,0 +1,36 @@
+"""An exported model file: the camera frame it takes, and the ``racer`` metadata inside it (onnx only, no torch:
+the on-car runtime reads it)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import onnx
+
+OBS_HEIGHT, OBS_WIDTH = 120, 160
+"""The camera frame the policy was trained on: 160×120 grayscale."""
+
+
+class ExportError(ValueError):
+    """A model file or checkpoint that cannot be used; the message names it."""
+
+
+def stamp(path: Path, info: dict) -> None:
+    """Put ``info`` into the ONNX file's metadata properties (key ``racer``, JSON), so the model describes itself."""
+    proto = onnx.load(str(path))
+    entry = proto.metadata_props.add()
+    entry.key, entry.value = "racer", json.dumps(info)
+    onnx.save(proto, str(path))
+
+
+def model_info(path: str | Path) -> dict:
+    """The ``racer`` metadata of an exported model (ExportError if it has none)."""
+    try:
+        proto = onnx.load(str(path), load_external_data=False)
+    except Exception as exc:  # protobuf's DecodeError and friends: whatever it is, it is not a model we can run
+        raise ExportError(f"{str(path)!r} is not an ONNX model ({type(exc).__name__})") from None
+    for entry in proto.metadata_props:
+        if entry.key == "racer":
+            return json.loads(entry.value)
+    raise ExportError(f"{str(path)!r} is not a model exported by racer export (no 'racer' metadata)")
