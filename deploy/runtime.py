@@ -129,7 +129,11 @@ def drive(
 ) -> DriveResult:
     """Run the loop until the source ends (or ``max_frames``); every frame gets one command."""
     cv2.setNumThreads(1)
-    capture = open_source(source)
+    try:
+        capture = open_source(source)
+    except DeployError:
+        sink.close()  # nothing will be written: release the output too
+        raise
     stack = FrameStack(policy.stack_size)
     infer, loop = [], []
     frame_no, start = 0, time.perf_counter()
