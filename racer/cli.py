@@ -663,6 +663,54 @@ def bench_loop_cmd(
     write_json(results, json_out)
 
 
+@bench_app.command("train")
+def bench_train_cmd(
+    seeds: Annotated[str, typer.Option(help="Comma-separated seeds; medians are over them.")] = "0,1,2",
+    time_limit: Annotated[str, typer.Option(help="Give up on a seed after this long, per system (10m).")] = "10m",
+    track: Annotated[str, typer.Option(help="Track name or .npy path.")] = "reinvent_base",
+    workers: Annotated[int, typer.Option(min=1, help="racer's workers and SB3's SubprocVecEnv envs.")] = 2,
+    hyperparams: Annotated[Path | None, typer.Option("--hyperparams", help="DeepRacer hyperparameters.json.")] = None,
+    eval_episodes: Annotated[int, typer.Option(min=1, help="Evaluation starts per direction.")] = 3,
+    sb3: Annotated[bool, typer.Option("--sb3/--no-sb3", help="Also train Stable-Baselines3 PPO.")] = True,
+    sb3_n_steps: Annotated[
+        int | None, typer.Option(min=8, help="SB3's steps per env between updates (default: racer's batch / workers).")
+    ] = None,
+    json_out: Annotated[str | None, typer.Option("--json", help="Write the result as JSON to F (- = stdout).")] = None,
+) -> None:
+    """Time and env steps from scratch to a robust lap (every evaluation lap completed), racer vs SB3 PPO."""
+    from racer.bench_train import BenchTrainSettings, bench_train
+    from racer.runconfig import build_run, parse_duration
+
+    try:
+        seed_list = [int(s) for s in seeds.split(",")]
+    except ValueError:
+        fail(f"--seeds must be comma-separated integers (got {seeds!r})")
+    try:
+        limit = parse_duration(time_limit)
+        hp = str(hyperparams) if hyperparams else None
+        build_run("bench-check", track=track, hyperparams=hp)  # bad files fail here, in one line
+        if sb3:
+            import stable_baselines3  # noqa: F401
+    except ImportError:
+        fail("--sb3 needs Stable-Baselines3: pip install 'racer[bench]' (or pass --no-sb3)")
+    except _user_errors() as exc:
+        fail(str(exc))
+    settings = BenchTrainSettings(seed_list, limit, track, hp, workers, eval_episodes, sb3, sb3_n_steps)
+    result = bench_train(settings, console)
+    table = Table("figure", "racer", "SB3 PPO")
+    for label, key in (("time to lap s (median)", "time_to_lap_s"), ("env steps to lap", "env_steps_to_lap")):
+        table.add_row(label, _fmt(result.get(key)), _fmt(result.get(f"sb3_{key}")))
+    table.add_row("seeds lapped", str(result.get("lapped")), str(result.get("sb3_lapped", "-")))
+    console.print(table)
+    if "speedup_vs_sb3" in result:
+        console.print(f"racer reaches a robust lap {result['speedup_vs_sb3']:.2f}× as fast as SB3 PPO")
+    write_json(result, json_out)
+
+
+def _fmt(value: float | None) -> str:
+    return "-" if value is None else f"{value:.0f}"
+
+
 @bench_app.command("soak")
 def bench_soak_cmd(
     duration: Annotated[str, typer.Option(help="Run time (90s, 10m, 2h).")] = "10m",
