@@ -35,6 +35,7 @@ from torch import nn
 from torch.distributions import Categorical, Distribution, Independent, Normal
 
 NetworkName = Literal["shallow", "deep"]
+Precision = Literal["fp32", "bf16"]
 ActionKind = Literal["discrete", "continuous"]
 
 # DeepRacer's model_metadata "neural_network" names → racer's trunks.
@@ -140,6 +141,8 @@ class ActorCritic(nn.Module):
         self.trunk = nn.Sequential(*convs, *dense)
         self.value_head = _init(nn.Linear(HIDDEN, 1), 1.0)
         self.action_dim = self._build_policy_head(n_actions, action_low, action_high)
+        self.trunk_dtype: torch.dtype | None = None
+        """None = float32; torch.bfloat16 = the trunk under autocast (``set_trunk_precision``)."""
 
     def _build_policy_head(
         self, n_actions: int | None, low: tuple[float, ...] | None, high: tuple[float, ...] | None
@@ -166,14 +169,27 @@ class ActorCritic(nn.Module):
         self.log_std = nn.Parameter(torch.zeros(len(low)))
         return len(low)
 
+    def set_trunk_precision(self, precision: Precision) -> None:
+        """Run the convolutions and the dense layer in ``bf16`` (autocast: the weights stay float32) or ``fp32``.
+
+        The heads, the distributions and the losses stay float32 either way: bf16's 8-bit mantissa is fine for
+        features but would put ~0.4 % noise on the logits, hence on PPO's probability ratios.
+        """
+        if precision not in ("fp32", "bf16"):
+            raise ValueError(f"precision must be 'fp32' or 'bf16', got {precision!r}")
+        self.trunk_dtype = torch.bfloat16 if precision == "bf16" else None
+
     def features(self, obs: torch.Tensor) -> torch.Tensor:
-        """The trunk's 512 features of a uint8 (B, H, W, C) batch."""
+        """The trunk's 512 features (float32) of a uint8 (B, H, W, C) batch."""
         if obs.dtype != torch.uint8:
             raise TypeError(f"observations must be uint8 camera frames, got {obs.dtype}")
         if tuple(obs.shape[1:]) != self.obs_shape:
             raise ValueError(f"observations of shape {tuple(obs.shape)}, expected (B, *{self.obs_shape})")
         x = obs.permute(0, 3, 1, 2).float() / 255.0
-        return self.trunk(x)
+        if self.trunk_dtype is None:
+            return self.trunk(x)
+        with torch.autocast(x.device.type, dtype=self.trunk_dtype):
+            return self.trunk(x).float()
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(logits (B, n) or Gaussian mean (B, d) in env units, V(o) (B,)) of a uint8 (B, H, W, C) batch."""
@@ -222,6 +238,19 @@ class ActorCritic(nn.Module):
         params, value = self(obs)
         dist = self._dist(params)
         return dist.log_prob(actions), dist.entropy(), value
+
+
+def bf16_is_fast(device: str = "cpu") -> bool:
+    """True where bf16 matrix kernels run natively (AVX512-BF16 or AMX on a CPU; any recent GPU), so that a bf16
+    trunk is faster than fp32. Elsewhere bf16 is emulated on the CPU and slower."""
+    if device.startswith("cuda"):
+        return torch.cuda.is_available() and torch.cuda.is_bf16_supported()
+    # torch.cpu's checks are private but stable since 2.3; without them, assume emulation (fp32 is then faster).
+    native = (
+        getattr(torch.cpu, "_is_avx512_bf16_supported", lambda: False)()
+        or getattr(torch.cpu, "_is_amx_tile_supported", lambda: False)()
+    )
+    return bool(native and torch.backends.mkldnn.is_available())
 
 
 def build_policy(

@@ -56,6 +56,8 @@ class BenchTrainSettings:
     """SB3's rollout length per env between updates; None = racer's median batch per update on the same seed
     divided by ``workers``, so both update on as many env steps (racer's batch is 20 episodes, DeepRacer's
     ``num_episodes_between_training``, which has no SB3 equivalent)."""
+    precision: str = "auto"
+    """racer's PPO update arithmetic (``racer train --precision``)."""
 
 
 @dataclass
@@ -140,6 +142,7 @@ def run_racer(settings: BenchTrainSettings, seed: int) -> LapRun:
             eval_every=1,
             eval_episodes=settings.eval_episodes,
             stop_when_robust=1,
+            precision=settings.precision,
         )
         t0 = time.time()
         run_train(run, opts, files, Console(file=io.StringIO()))

@@ -140,15 +140,20 @@ def train_cmd(
     stop_when_robust: Annotated[
         int | None, typer.Option(min=1, help="Stop after K consecutive checkpoints complete every evaluation lap.")
     ] = None,
+    precision: Annotated[
+        str, typer.Option(help="The trainer's PPO update arithmetic: auto (bf16 where native), fp32, bf16.")
+    ] = "auto",
 ) -> None:
     """Train: an embedded Redis (unless --redis), the PPO trainer and N rollout workers on this machine."""
     from common.config import RunConfig
     from model_store import RunStore, open_store
     from racer.launcher import TrainOptions, new_run_id, run_train
     from racer.runconfig import build_run, parse_duration
+    from trainer.process import resolve_precision
 
     try:
         limit = parse_duration(time_limit) if time_limit else None
+        resolve_precision(precision)
         rid = run_id or new_run_id()
         if resume:
             if not run_id:
@@ -183,6 +188,7 @@ def train_cmd(
             eval_episodes=eval_episodes,
             stop_when_robust=stop_when_robust,
             eval_tracks=eval_track or [],
+            precision=precision,
         )
         console.print(f"run [bold]{rid}[/]: {workers} workers on {run.env.track}, store {store}")
         status = run_train(run, opts, files, console)
@@ -210,6 +216,10 @@ def trainer_cmd(
     resume: Annotated[bool, typer.Option("--resume", envvar="RACER_RESUME")] = False,
     time_limit: Annotated[str | None, typer.Option("--time-limit", envvar="RACER_TIME_LIMIT")] = None,
     threads: Annotated[int, typer.Option(min=1, envvar="RACER_TRAINER_THREADS", help="PyTorch threads.")] = 1,
+    precision: Annotated[
+        str,
+        typer.Option(envvar="RACER_PRECISION", help="PPO update arithmetic: auto (bf16 where native), fp32, bf16."),
+    ] = "auto",
     outage_timeout: OutageOpt = "10m",
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
@@ -221,6 +231,9 @@ def trainer_cmd(
 
     _setup_logging(verbose)
     try:
+        from trainer.process import resolve_precision
+
+        resolve_precision(precision)  # a bad value fails before any file is written
         run_files: dict[str, bytes] = {}
         if config:
             run = RunConfig.model_validate_json(config.read_text())
@@ -260,6 +273,7 @@ def trainer_cmd(
             threads,
             run_files,
             outage_s=parse_duration(outage_timeout),
+            precision=precision,
         )
         run_trainer(run, opts, _stop_event_on_signals())
     except _user_errors() as exc:
@@ -675,6 +689,7 @@ def bench_train_cmd(
     sb3_n_steps: Annotated[
         int | None, typer.Option(min=8, help="SB3's steps per env between updates (default: racer's batch / workers).")
     ] = None,
+    precision: Annotated[str, typer.Option(help="racer's PPO update arithmetic: auto, fp32, bf16.")] = "auto",
     json_out: Annotated[str | None, typer.Option("--json", help="Write the result as JSON to F (- = stdout).")] = None,
 ) -> None:
     """Time and env steps from scratch to a robust lap (every evaluation lap completed), racer vs SB3 PPO."""
@@ -686,6 +701,9 @@ def bench_train_cmd(
     except ValueError:
         fail(f"--seeds must be comma-separated integers (got {seeds!r})")
     try:
+        from trainer.process import resolve_precision
+
+        resolve_precision(precision)
         limit = parse_duration(time_limit)
         hp = str(hyperparams) if hyperparams else None
         build_run("bench-check", track=track, hyperparams=hp)  # bad files fail here, in one line
@@ -695,7 +713,7 @@ def bench_train_cmd(
         fail("--sb3 needs Stable-Baselines3: pip install 'racer[bench]' (or pass --no-sb3)")
     except _user_errors() as exc:
         fail(str(exc))
-    settings = BenchTrainSettings(seed_list, limit, track, hp, workers, eval_episodes, sb3, sb3_n_steps)
+    settings = BenchTrainSettings(seed_list, limit, track, hp, workers, eval_episodes, sb3, sb3_n_steps, precision)
     result = bench_train(settings, console)
     table = Table("figure", "racer", "SB3 PPO")
     for label, key in (("time to lap s (median)", "time_to_lap_s"), ("env steps to lap", "env_steps_to_lap")):
@@ -709,6 +727,24 @@ def bench_train_cmd(
 
 def _fmt(value: float | None) -> str:
     return "-" if value is None else f"{value:.0f}"
+
+
+@bench_app.command("update")
+def bench_update_cmd(
+    threads: Annotated[int, typer.Option(min=1, help="PyTorch threads (racer train's trainer uses 2).")] = 2,
+    batch: Annotated[int, typer.Option(min=1, help="Minibatch size (DeepRacer's batch_size).")] = 64,
+    repeats: Annotated[int, typer.Option(min=1, help="Timed runs of 10 steps; the median is reported.")] = 5,
+    json_out: Annotated[str | None, typer.Option("--json", help="Write the result as JSON to F (- = stdout).")] = None,
+) -> None:
+    """Milliseconds per PPO minibatch step (forward, backward, Adam): fp32/bf16 trunk × Adam loop/fused."""
+    from racer.bench_update import bench_update
+
+    result = bench_update(threads, batch, repeats=repeats)
+    table = Table("setting", "ms per minibatch (median)", "speed-up vs fp32 + Adam loop")
+    for name, ms in result["ms_per_step"].items():
+        table.add_row(name, f"{ms:.1f}", f"{result['speedup_vs_fp32_loop'][name]:.2f}×")
+    console.print(table)
+    write_json(result, json_out)
 
 
 @bench_app.command("soak")

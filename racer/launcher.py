@@ -39,6 +39,8 @@ class TrainOptions:
     resume: bool = False
     trainer_threads: int = 2
     """PyTorch threads of the trainer: with max_policy_lag 0 the workers wait while it trains, so it can use two."""
+    precision: str = "auto"
+    """The trainer's PPO update arithmetic: auto, fp32 or bf16 (``racer trainer --precision``)."""
     evaluate: bool = True
     """Run the evaluator process beside the trainer."""
     eval_every: int = 1
@@ -132,7 +134,7 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
         common += ["--s3-endpoint", opts.s3_endpoint] if opts.s3_endpoint else []
         trainer_args = ["trainer", "--config", str(config_path), "--files", str(work), *common]
         trainer_args += ["--resume"] if opts.resume else []
-        trainer_args += ["--threads", str(opts.trainer_threads)]
+        trainer_args += ["--threads", str(opts.trainer_threads), "--precision", opts.precision]
         trainer = _spawn(trainer_args, logs / "trainer.log")
         workers = [_spawn(_worker_args(run.run_id, k, common), logs / f"worker-{k}.log") for k in range(opts.workers)]
         evaluator = []

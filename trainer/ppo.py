@@ -179,7 +179,7 @@ def update(
         order = torch.randperm(len(batch), generator=generator)
         for start in range(0, len(batch), minibatch_size):
             mb = batch.select(order[start : start + minibatch_size])
-            stats = _minibatch_step(model, optimizer, mb, clip_eps, beta_entropy, value_coef, loss_type, max_grad_norm)
+            stats = minibatch_step(model, optimizer, mb, clip_eps, beta_entropy, value_coef, loss_type, max_grad_norm)
             for key, value in stats.items():
                 sums[key] += value
             n_steps += 1
@@ -188,7 +188,7 @@ def update(
     return means
 
 
-def _minibatch_step(
+def minibatch_step(
     model: nn.Module,
     optimizer: torch.optim.Optimizer,
     mb: PPOBatch,

@@ -24,7 +24,15 @@ import torch
 
 from common.config import RunConfig
 from common.keys import Keys
-from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes, checkpoint_to_bytes
+from common.policy import (
+    ActorCritic,
+    Precision,
+    action_space_spec,
+    bf16_is_fast,
+    build_policy,
+    checkpoint_from_bytes,
+    checkpoint_to_bytes,
+)
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, decode_segment
 from common.redis_util import connect_checked, redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
@@ -57,6 +65,9 @@ class TrainerOptions:
     """Write TensorBoard scalars to ``runs/<id>/tensorboard/`` (in the store folder, or ./ for an S3 store)."""
     outage_s: float = DEFAULT_GIVE_UP_S
     """How long to ride out one Redis or store outage before exiting with an error, seconds."""
+    precision: str = "auto"
+    """The trunk's arithmetic in PPO updates: ``fp32``, ``bf16``, or ``auto`` (bf16 where the CPU or GPU runs it
+    natively, see ``common.policy.bf16_is_fast``). Checkpoints are float32 either way."""
 
 
 @dataclass
@@ -116,11 +127,13 @@ class Trainer:
         # A predecessor killed mid-update leaves its "training" mark, which would hold the workers back.
         self.redis_outage.call("publish the policy", lambda: (self.redis.delete(self.keys.training), self._publish()))
         log.info(
-            "run %s: policy v%d published; store %s, Redis %s",
+            "run %s: policy v%d published; store %s, Redis %s; PPO updates in %s on %d threads",
             self.run.run_id,
             self.version,
             self.runs.store.uri,
             redact(self.opts.redis_url),
+            self.precision,
+            torch.get_num_threads(),
         )
 
     def _write_run_files(self) -> None:
@@ -142,7 +155,9 @@ class Trainer:
         probe.close()
         torch.manual_seed(self.run.seed)
         self.model: ActorCritic = build_policy(self.obs_shape, spec, self.run.policy)
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=self.hp.lr, weight_decay=self.run.policy.l2)
+        self.precision = resolve_precision(self.opts.precision)
+        self.model.set_trunk_precision(self.precision)
+        self.optimizer = make_optimizer(self.model, self.hp.lr, self.run.policy.l2)
         self.generator = torch.Generator().manual_seed(self.run.seed)
 
     def _resume(self) -> None:
@@ -161,6 +176,8 @@ class Trainer:
         self.model.load_state_dict(model_sd)
         if optim_sd is not None:
             self.optimizer.load_state_dict(optim_sd)
+            for group in self.optimizer.param_groups:  # a checkpoint from an older trainer says fused=None
+                group["fused"] = self.optimizer.defaults["fused"]
         self.version = int(meta["version"])
         self.stats.env_steps = int(meta.get("env_steps", 0))
         self.stats.episodes = int(meta.get("episodes", 0))
@@ -365,6 +382,7 @@ class Trainer:
             "silent_workers": sorted(self.silent),
             "segments_by_worker": dict(self.stats.by_worker),
             "outages": {"redis": self.redis_outage.outages, "store": self.store_outage.outages},
+            "precision": self.precision,
             "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             "time": time.time(),
         }
@@ -405,6 +423,21 @@ class Trainer:
             if self.silent.pop(wid, None) is not None:
                 log.warning("worker %s is sending heartbeats again", wid)
         self.live.update(alive)
+
+
+def resolve_precision(precision: str) -> Precision:
+    """``auto`` → ``bf16`` where it runs natively, else ``fp32``; ``fp32``/``bf16`` as given."""
+    if precision == "auto":
+        return "bf16" if bf16_is_fast() else "fp32"
+    if precision not in ("fp32", "bf16"):
+        raise ValueError(f"precision must be auto, fp32 or bf16 (got {precision!r})")
+    return precision  # type: ignore[return-value]
+
+
+def make_optimizer(model: torch.nn.Module, lr: float, l2: float) -> torch.optim.Adam:
+    """Adam with its fused kernel: the same update as the per-parameter loop, one vectorized pass over the 6 M
+    weights. The loop took a quarter of each minibatch step on the CPU (README, Speed)."""
+    return torch.optim.Adam(model.parameters(), lr=lr, weight_decay=l2, fused=True)
 
 
 def _summary_writer(store: str, run_id: str):
