@@ -12,7 +12,51 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from common.car_calibration import CarCalibration
 from common.hyperparams import Hyperparameters
-from common.policy import PolicyConfig
+
+NetworkName = Literal["shallow", "deep"]
+
+# DeepRacer's model_metadata "neural_network" names → racer's trunks.
+_METADATA_NETWORKS: dict[str, NetworkName] = {
+    "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW": "shallow",
+    "DEEP_CONVOLUTIONAL_NETWORK": "deep",
+    "DEEP_CONVOLUTIONAL_NETWORK_DEEP": "deep",
+}
+
+
+class PolicyConfig(BaseModel):
+    """Architecture of the actor-critic network."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    network: NetworkName = "shallow"
+    """Convolutional trunk: ``shallow`` (DeepRacer's 3 convs) or ``deep`` (4 convs)."""
+    dropout: float = Field(0.0, ge=0, lt=1)
+    """Dropout probability before the dense layer; 0 = no Dropout module."""
+    batch_norm: bool = False
+    """BatchNorm2d after each convolution."""
+    l2: float = Field(0.0, ge=0)
+    """L2 weight decay, used by the trainer's optimizer (not by the network), per gradient step."""
+    stack_size: int = Field(1, ge=1, le=8)
+    """Stacked camera frames per observation, frames: the observation's channel count."""
+
+
+def network_from_metadata(name: str) -> NetworkName:
+    """racer's trunk name for DeepRacer's model_metadata ``neural_network`` value."""
+    try:
+        return _METADATA_NETWORKS[name]
+    except KeyError:
+        raise ValueError(f"unknown neural_network {name!r}; expected one of {sorted(_METADATA_NETWORKS)}") from None
+
+
+PRECISIONS = ("auto", "fp32", "bf16")
+"""The trainer's PPO update arithmetic: auto (bf16 where native), fp32, or a bf16 trunk."""
+
+
+def check_precision(precision: str) -> str:
+    """``precision`` if it is one of PRECISIONS; ValueError naming it otherwise."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be {', '.join(PRECISIONS)} (got {precision!r})")
+    return precision
 
 
 class _Strict(BaseModel):

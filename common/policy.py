@@ -30,20 +30,16 @@ from typing import Any, Literal
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
 from torch import nn
 from torch.distributions import Categorical, Distribution, Independent, Normal
 
-NetworkName = Literal["shallow", "deep"]
+# The architecture's config lives in common.config (no torch), so that processes that only read configs
+# (racer train's launcher) start without importing torch; re-exported here, where the network is built.
+from common.config import NetworkName, PolicyConfig, network_from_metadata  # noqa: F401 (re-exported)
+
 Precision = Literal["fp32", "bf16"]
 ActionKind = Literal["discrete", "continuous"]
 
-# DeepRacer's model_metadata "neural_network" names → racer's trunks.
-_METADATA_NETWORKS: dict[str, NetworkName] = {
-    "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW": "shallow",
-    "DEEP_CONVOLUTIONAL_NETWORK": "deep",
-    "DEEP_CONVOLUTIONAL_NETWORK_DEEP": "deep",
-}
 # (out_channels, kernel, stride) of each conv layer.
 _CONV_LAYERS: dict[NetworkName, tuple[tuple[int, int, int], ...]] = {
     "shallow": ((32, 8, 4), (64, 4, 2), (64, 3, 1)),
@@ -55,31 +51,6 @@ HIDDEN = 512
 
 class CheckpointError(ValueError):
     """Bytes that are not a safe, well-formed state dict or checkpoint."""
-
-
-class PolicyConfig(BaseModel):
-    """Architecture of the actor-critic network."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    network: NetworkName = "shallow"
-    """Convolutional trunk: ``shallow`` (DeepRacer's 3 convs) or ``deep`` (4 convs)."""
-    dropout: float = Field(0.0, ge=0, lt=1)
-    """Dropout probability before the dense layer; 0 = no Dropout module."""
-    batch_norm: bool = False
-    """BatchNorm2d after each convolution."""
-    l2: float = Field(0.0, ge=0)
-    """L2 weight decay, used by the trainer's optimizer (not by the network), per gradient step."""
-    stack_size: int = Field(1, ge=1, le=8)
-    """Stacked camera frames per observation, frames: the observation's channel count."""
-
-
-def network_from_metadata(name: str) -> NetworkName:
-    """racer's trunk name for DeepRacer's model_metadata ``neural_network`` value."""
-    try:
-        return _METADATA_NETWORKS[name]
-    except KeyError:
-        raise ValueError(f"unknown neural_network {name!r}; expected one of {sorted(_METADATA_NETWORKS)}") from None
 
 
 def conv_output_shape(obs_shape: tuple[int, int, int], network: NetworkName) -> tuple[int, int, int]:

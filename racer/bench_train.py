@@ -72,10 +72,13 @@ class LapRun:
     wall_s: float
     """Wall-clock of the whole run, evaluations included."""
     curve: list[dict]
-    """Per evaluated policy: version, env_steps, time_s (as time_to_lap_s counts it), completion_rate,
-    mean_progress, best_lap_s."""
+    """Per evaluated policy: version, env_steps, time_s (as time_to_lap_s counts it), confirmed_s (when its
+    evaluation had finished, on the same clock), completion_rate, mean_progress, best_lap_s."""
     batch_steps: int
     """Median env steps per policy update."""
+    confirmed_s: float | None = None
+    """When the evaluation that found the lap had finished (racer's evaluator runs beside training, at a lower
+    CPU priority, so this is later than time_to_lap_s)."""
 
 
 def _first_lap(curve: list[dict]) -> dict | None:
@@ -93,6 +96,7 @@ def _lap_run(system: str, seed: int, curve: list[dict], wall_s: float, batch_ste
         wall_s,
         curve,
         batch_steps,
+        first["confirmed_s"] if first else None,
     )
 
 
@@ -113,15 +117,16 @@ def racer_curve(run_dir: Path, t0: float) -> list[dict]:
         if version not in made:  # version 0 (the untrained policy) has no metrics row
             continue
         made_at, env_steps = made[version]
-        curve.append(_point(version, env_steps, made_at - t0, record))
+        curve.append(_point(version, env_steps, made_at - t0, record, float(record["created"]) - t0))
     return curve
 
 
-def _point(version: int, env_steps: int, time_s: float, summary: dict) -> dict:
+def _point(version: int, env_steps: int, time_s: float, summary: dict, confirmed_s: float) -> dict:
     return {
         "version": version,
         "env_steps": env_steps,
         "time_s": round(time_s, 2),
+        "confirmed_s": round(confirmed_s, 2),
         "completion_rate": summary["completion_rate"],
         "mean_progress": round(summary["mean_progress"], 2),
         "best_lap_s": summary["best_lap_s"],
@@ -221,8 +226,9 @@ def run_sb3(settings: BenchTrainSettings, seed: int, n_steps: int) -> LapRun:
             made_at = time.time() - t0 - eval_s
             start = time.time()
             summary = summarize(evaluate(SB3Actor(self.model.policy), run.env, 1, eval_settings))
-            eval_s += time.time() - start
-            curve.append(_point(len(curve) + 1, int(self.model.num_timesteps), made_at, summary))
+            took = time.time() - start
+            eval_s += took
+            curve.append(_point(len(curve) + 1, int(self.model.num_timesteps), made_at, summary, made_at + took))
             self.done = summary["completion_rate"] >= 1.0 or made_at > settings.time_limit_s
 
         def _on_step(self) -> bool:
@@ -269,6 +275,7 @@ def summarize_bench(runs: list[LapRun], settings: BenchTrainSettings) -> dict:
         out[f"{prefix}env_steps_to_lap"] = statistics.median(steps) if steps else None
         out[f"{prefix}time_to_lap_bound_s"] = statistics.median(bounded)
         out[f"{prefix}time_to_lap_spread_s"] = _spread(times)
+        out[f"{prefix}confirmed_s"] = statistics.median([r.confirmed_s for r in lapped]) if lapped else None
         out[f"{prefix}env_steps_to_lap_spread"] = _spread(steps)
         out[f"{prefix}lapped"] = f"{len(lapped)}/{len(mine)}"
     if "sb3_time_to_lap_bound_s" in out and out.get("time_to_lap_bound_s"):

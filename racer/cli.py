@@ -145,15 +145,14 @@ def train_cmd(
     ] = "auto",
 ) -> None:
     """Train: an embedded Redis (unless --redis), the PPO trainer and N rollout workers on this machine."""
-    from common.config import RunConfig
+    from common.config import RunConfig, check_precision
     from model_store import RunStore, open_store
     from racer.launcher import TrainOptions, new_run_id, run_train
     from racer.runconfig import build_run, parse_duration
-    from trainer.process import resolve_precision
 
     try:
         limit = parse_duration(time_limit) if time_limit else None
-        resolve_precision(precision)
+        check_precision(precision)
         rid = run_id or new_run_id()
         if resume:
             if not run_id:
@@ -231,9 +230,9 @@ def trainer_cmd(
 
     _setup_logging(verbose)
     try:
-        from trainer.process import resolve_precision
+        from common.config import check_precision
 
-        resolve_precision(precision)  # a bad value fails before any file is written
+        check_precision(precision)  # a bad value fails before any file is written
         run_files: dict[str, bytes] = {}
         if config:
             run = RunConfig.model_validate_json(config.read_text())
@@ -317,9 +316,16 @@ def evaluator_cmd(
     episodes: Annotated[int, typer.Option(min=1, envvar="RACER_EVAL_EPISODES", help="Starts per direction.")] = 6,
     action_noise: Annotated[float, typer.Option(min=0, max=1, help="Action noise fraction.")] = 0.1,
     track: Annotated[list[str] | None, typer.Option(help="Evaluate on these tracks (default: the run's).")] = None,
+    nice: Annotated[
+        int, typer.Option(min=0, max=19, envvar="RACER_EVAL_NICE", help="Lower CPU priority (Unix nice increment).")
+    ] = 0,
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
     """Run the evaluator role: robust evaluation of each new checkpoint, and the best pointer."""
+    import os
+
+    if nice:
+        os.nice(nice)  # first, so that even importing torch yields the CPU to the trainer and the workers
     from trainer.evaluator import EvalSettings, EvaluatorOptions, run_evaluator
 
     _setup_logging(verbose)
@@ -701,9 +707,9 @@ def bench_train_cmd(
     except ValueError:
         fail(f"--seeds must be comma-separated integers (got {seeds!r})")
     try:
-        from trainer.process import resolve_precision
+        from common.config import check_precision
 
-        resolve_precision(precision)
+        check_precision(precision)
         limit = parse_duration(time_limit)
         hp = str(hyperparams) if hyperparams else None
         build_run("bench-check", track=track, hyperparams=hp)  # bad files fail here, in one line

@@ -23,7 +23,6 @@ from common.keys import Keys
 from common.redis_util import connect, connect_checked, redact
 from model_store import open_store
 from racer.embedded_redis import EmbeddedRedis
-from trainer.evaluator import robust_streak
 
 
 @dataclass
@@ -49,6 +48,9 @@ class TrainOptions:
     """Start positions per direction in each evaluation."""
     eval_tracks: list[str] = field(default_factory=list)
     """Tracks the evaluator drives (empty = the run's track)."""
+    eval_nice: int = 5
+    """The evaluator's nice increment: on a machine shared with the trainer and workers it takes the CPU they
+    leave, so picking checkpoints never slows training (README, Speed)."""
     stop_when_robust: int | None = None
     """Stop once this many consecutive evaluated checkpoints complete every evaluation lap."""
     worker_restarts: int = 3
@@ -140,13 +142,23 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
         evaluator = []
         if opts.evaluate:
             eval_args = ["evaluator", "--run-id", run.run_id, *common, "--every", str(opts.eval_every)]
-            eval_args += ["--episodes", str(opts.eval_episodes)]
+            eval_args += ["--episodes", str(opts.eval_episodes), "--nice", str(opts.eval_nice)]
             eval_args += [arg for t in opts.eval_tracks for arg in ("--track", t)]
             evaluator.append(_spawn(eval_args, logs / "evaluator.log"))
         try:
             return _watch(run, opts, redis_url, trainer, _Workers(workers, common, logs, opts.worker_restarts), console)
         finally:
             _stop_all([*workers, *evaluator, trainer])
+
+
+def robust_streak(summaries: list[dict]) -> int:
+    """How many of the most recent evaluations in a row completed every lap."""
+    streak = 0
+    for s in reversed(summaries):
+        if s.get("completion_rate", 0.0) < 1.0:
+            break
+        streak += 1
+    return streak
 
 
 def _check_store(store: str, endpoint: str | None) -> None:

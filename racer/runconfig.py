@@ -9,10 +9,9 @@ from pydantic import ValidationError
 
 from common.action_space import default_action_space, load_action_space
 from common.car_calibration import CarCalibration, load_calibration
-from common.config import EnvConfig, RandomizationConfig, RunConfig
+from common.config import EnvConfig, PolicyConfig, RandomizationConfig, RunConfig, network_from_metadata
 from common.hyperparams import Hyperparameters, load_hyperparameters
 from common.jsonfile import read_json_object
-from common.policy import PolicyConfig, network_from_metadata
 from sim.reward import check_reward_function, example_path, load_reward_function
 from sim.track import load_track
 

@@ -21,7 +21,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from common.action_space import MAX_STEERING_DEG
 from common.car_calibration import CarCalibration
@@ -97,6 +96,10 @@ def _lag(u: np.ndarray, y0: float, tau_s: float, substep_s: float) -> np.ndarray
     """First-order lag, exact for an input held over each substep: y_j = a·y_(j-1) + (1 - a)·u_j."""
     if tau_s <= 0:
         return u
+    # Imported here: scipy.signal costs ~0.7 s to import, paid by every worker, trainer and evaluator at start-up
+    # though only a calibrated car with a lag uses it.
+    from scipy.signal import lfilter
+
     a = math.exp(-substep_s / tau_s)
     y, _ = lfilter([1 - a], [1, -a], u, zi=[a * y0])
     return y

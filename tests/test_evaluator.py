@@ -5,12 +5,12 @@ import json
 import pytest
 
 from model_store import LocalStore, RunStore
+from racer.launcher import robust_streak
 from racer.runconfig import build_run
 from trainer.evaluator import (
     EvalSettings,
     Trial,
     evaluate_checkpoint,
-    robust_streak,
     save_evaluation,
     score,
     summarize,

@@ -250,7 +250,8 @@ def run_evaluator(opts: EvaluatorOptions, stop: threading.Event | None = None) -
         run = env_cfg = None
         while not stop.is_set():
             pv = on_redis("read the policy version", partial(_newest, r, keys))
-            if pv is None or pv.version <= done or pv.version % max(1, opts.every):
+            # Version 0 is the untrained initialization: evaluating it would take a core from the first collection.
+            if pv is None or pv.version == 0 or pv.version <= done or pv.version % max(1, opts.every):
                 stop.wait(0.5)
                 continue
             if run is None:
@@ -298,13 +299,3 @@ def _newest(r, keys: Keys) -> PolicyVersion | None:
         return PolicyVersion.from_json(raw)
     except ProtocolError:
         return None
-
-
-def robust_streak(summaries: list[dict]) -> int:
-    """How many of the most recent evaluations in a row completed every lap."""
-    streak = 0
-    for s in reversed(summaries):
-        if s.get("completion_rate", 0.0) < 1.0:
-            break
-        streak += 1
-    return streak

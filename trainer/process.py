@@ -22,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-from common.config import RunConfig
+from common.config import RunConfig, check_precision
 from common.keys import Keys
 from common.policy import (
     ActorCritic,
@@ -427,10 +427,8 @@ class Trainer:
 
 def resolve_precision(precision: str) -> Precision:
     """``auto`` → ``bf16`` where it runs natively, else ``fp32``; ``fp32``/``bf16`` as given."""
-    if precision == "auto":
+    if check_precision(precision) == "auto":
         return "bf16" if bf16_is_fast() else "fp32"
-    if precision not in ("fp32", "bf16"):
-        raise ValueError(f"precision must be auto, fp32 or bf16 (got {precision!r})")
     return precision  # type: ignore[return-value]
 
 
