@@ -271,6 +271,11 @@ class SimTraceRecorder:
         self.writer.clear()
         return text
 
+    def extend(self, other: SimTraceRecorder) -> None:
+        """Append ``other``'s finished episodes to this recording (trials driven side by side, kept in order)."""
+        self.writer.rows.extend(other.writer.rows)
+        other.writer.clear()
+
     def _emit(self, action: int | tuple[float, float], command: tuple[float, float]) -> None:
         pose = self._pose
         if pose is None:

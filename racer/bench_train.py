@@ -76,6 +76,11 @@ class LapRun:
     evaluation had finished, on the same clock), completion_rate, mean_progress, best_lap_s."""
     batch_steps: int
     """Median env steps per policy update."""
+    first_policy_s: float | None = None
+    """When the first trained policy existed: start-up, one collection and one update."""
+    update_s: float | None = None
+    """Median seconds from one policy to the next: one collection and one update, the unit time to lap is
+    made of (the number of updates a seed needs varies more than this)."""
     confirmed_s: float | None = None
     """When the evaluation that found the lap had finished (racer's evaluator runs beside training, at a lower
     CPU priority, so this is later than time_to_lap_s)."""
@@ -85,8 +90,10 @@ def _first_lap(curve: list[dict]) -> dict | None:
     return next((point for point in curve if point["completion_rate"] >= 1.0), None)
 
 
-def _lap_run(system: str, seed: int, curve: list[dict], wall_s: float, batch_steps: int) -> LapRun:
+def _lap_run(system: str, seed: int, curve: list[dict], wall_s: float, batch_steps: int, made_s: list[float]) -> LapRun:
+    """The run's figures from its evaluation curve and the times (from the start) each policy was made."""
     first = _first_lap(curve)
+    gaps = [b - a for a, b in zip(made_s, made_s[1:], strict=False)]
     return LapRun(
         system,
         seed,
@@ -96,6 +103,8 @@ def _lap_run(system: str, seed: int, curve: list[dict], wall_s: float, batch_ste
         wall_s,
         curve,
         batch_steps,
+        made_s[0] if made_s else None,
+        statistics.median(gaps) if gaps else None,
         first["confirmed_s"] if first else None,
     )
 
@@ -153,8 +162,9 @@ def run_racer(settings: BenchTrainSettings, seed: int) -> LapRun:
         run_train(run, opts, files, Console(file=io.StringIO()))
         wall = time.time() - t0
         curve = racer_curve(Path(store, "runs", run_id), t0)
-        batches = [int(row["batch_steps"]) for row in _metrics(Path(store, "runs", run_id))]
-    return _lap_run("racer", seed, curve, wall, int(statistics.median(batches)) if batches else 0)
+        rows = _metrics(Path(store, "runs", run_id))
+    batch = int(statistics.median(int(row["batch_steps"]) for row in rows)) if rows else 0
+    return _lap_run("racer", seed, curve, wall, batch, [float(row["time"]) - t0 for row in rows])
 
 
 # --- Stable-Baselines3 ------------------------------------------------------------------------------------
@@ -241,7 +251,8 @@ def run_sb3(settings: BenchTrainSettings, seed: int, n_steps: int) -> LapRun:
         model.learn(total_timesteps=10**9, callback=RobustEval())
     finally:
         venv.close()
-    return _lap_run("sb3", seed, curve, time.time() - t0, n_steps * settings.workers)
+    made = [point["time_s"] for point in curve]
+    return _lap_run("sb3", seed, curve, time.time() - t0, n_steps * settings.workers, made)
 
 
 def _sb3_env(env_cfg: EnvConfig) -> Any:
@@ -276,6 +287,9 @@ def summarize_bench(runs: list[LapRun], settings: BenchTrainSettings) -> dict:
         out[f"{prefix}time_to_lap_bound_s"] = statistics.median(bounded)
         out[f"{prefix}time_to_lap_spread_s"] = _spread(times)
         out[f"{prefix}confirmed_s"] = statistics.median([r.confirmed_s for r in lapped]) if lapped else None
+        for key in ("first_policy_s", "update_s"):
+            values = [getattr(r, key) for r in mine if getattr(r, key) is not None]
+            out[f"{prefix}{key}"] = statistics.median(values) if values else None
         out[f"{prefix}env_steps_to_lap_spread"] = _spread(steps)
         out[f"{prefix}lapped"] = f"{len(lapped)}/{len(mine)}"
     if "sb3_time_to_lap_bound_s" in out and out.get("time_to_lap_bound_s"):

@@ -10,7 +10,15 @@ from pathlib import Path
 import pytest
 
 from common.hyperparams import Hyperparameters
-from racer.bench_train import BenchTrainSettings, LapRun, SB3Actor, racer_curve, sb3_ppo_kwargs, summarize_bench
+from racer.bench_train import (
+    BenchTrainSettings,
+    LapRun,
+    SB3Actor,
+    _lap_run,
+    racer_curve,
+    sb3_ppo_kwargs,
+    summarize_bench,
+)
 from racer.runconfig import build_run
 from trainer.evaluator import EvalSettings, evaluate
 
@@ -18,7 +26,8 @@ sb3 = pytest.importorskip("stable_baselines3", reason="racer bench train's basel
 
 
 def _lap(system: str, seed: int, t: float | None, steps: int | None) -> LapRun:
-    return LapRun(system, seed, t is not None, t, steps, 99.0, [], 800, None if t is None else t + 5)
+    confirmed = None if t is None else t + 5
+    return LapRun(system, seed, t is not None, t, steps, 99.0, [], 800, 10.0 + seed, 15.0 - seed, confirmed)
 
 
 def test_summary_medians_bounds_and_speedup() -> None:
@@ -36,11 +45,25 @@ def test_summary_medians_bounds_and_speedup() -> None:
     assert out["time_to_lap_spread_s"] == {"min": 30.0, "median": 40.0, "max": 50.0}
     assert out["sb3_time_to_lap_s"] == 75.0  # median of the two that lapped
     assert out["confirmed_s"] == 45.0 and out["sb3_confirmed_s"] == 80.0
+    assert out["first_policy_s"] == 11.0 and out["update_s"] == 14.0  # medians over seeds 0, 1, 2
     assert out["sb3_env_steps_to_lap"] == 2500
     assert out["sb3_lapped"] == "2/3" and out["lapped"] == "3/3"
     assert out["sb3_time_to_lap_bound_s"] == 90.0  # median of 90, 300, 60
     assert out["speedup_vs_sb3"] == pytest.approx(90.0 / 40.0)
     assert out["seeds"] == [0, 1, 2] and len(out["runs"]) == 6
+
+
+def test_a_run_is_judged_by_its_first_full_completion() -> None:
+    curve = [
+        {"time_s": 12.0, "env_steps": 900, "completion_rate": 0.5, "confirmed_s": 20.0},
+        {"time_s": 21.0, "env_steps": 1800, "completion_rate": 1.0, "confirmed_s": 30.0},
+        {"time_s": 33.0, "env_steps": 2700, "completion_rate": 1.0, "confirmed_s": 40.0},
+    ]
+    run = _lap_run("racer", 0, curve, 50.0, 900, [12.0, 21.0, 33.0, 41.0])
+    assert (run.lapped, run.time_to_lap_s, run.env_steps_to_lap, run.confirmed_s) == (True, 21.0, 1800, 30.0)
+    assert run.first_policy_s == 12.0 and run.update_s == 9.0  # gaps 9, 12, 8
+    never = _lap_run("sb3", 0, curve[:1], 50.0, 900, [12.0])
+    assert (never.lapped, never.time_to_lap_s, never.env_steps_to_lap, never.update_s) == (False, None, None, None)
 
 
 def test_racer_curve_times_each_policy_from_its_metrics_row(tmp_path: Path) -> None:

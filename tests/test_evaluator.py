@@ -174,3 +174,38 @@ def test_evaluation_sim_trace_is_read_by_deepracer_utils(tmp_path):
     assert df.groupby("episode")["progress"].max().round(1).tolist() == [
         round(t["progress"], 1) for t in record["trials"]
     ]
+
+
+def test_lockstep_evaluation_drives_each_trial_as_run_trial_does():
+    """evaluate() batches every trial's frame into one forward pass per step; each trial and its sim-trace rows
+    must come out as the one-at-a-time run_trial drives and records them."""
+    import torch
+
+    from common.policy import action_space_spec, build_policy
+    from common.simtrace import SimTraceRecorder
+    from sim.env import RacerEnv
+    from trainer.evaluator import evaluate, run_trial
+
+    run, _ = build_run("lock", track="reinvent_base")
+    env = RacerEnv(config=run.env)
+    torch.manual_seed(5)
+    model = build_policy((120, 160, 1), action_space_spec(env.actions), run.policy)
+    with torch.no_grad():  # decisive logits: a batch-vs-single rounding difference cannot flip an argmax
+        model.policy_head.weight.mul_(300.0)
+    settings = EvalSettings(episodes=2, both_directions=True, action_noise=0.1, seed=7)
+    batched_trace = SimTraceRecorder()
+    batched = evaluate(model, run.env, 1, settings, batched_trace)
+
+    noise = run.env.randomization.model_copy(update={"action_noise": 0.1, "random_start": False})
+    one_env = RacerEnv(config=run.env.model_copy(update={"randomization": noise}))
+    single_trace = SimTraceRecorder()
+    single = []
+    for reverse in (False, True):
+        count = one_env.task.start_indices(reverse)
+        for i in range(2):
+            start, seed = round(i * count / 2) % count, 7 + 1000 * i + (500 if reverse else 0)
+            single.append(run_trial(one_env, model, 1, start, reverse, seed, True, None, single_trace, len(single)))
+    assert [t.steps for t in batched] == [t.steps for t in single]
+    assert len({t.steps for t in batched}) > 1, "trials of different lengths should run side by side"
+    assert batched == single  # status, progress, lap time and every point of every path
+    assert batched_trace.take(include_open=True) == single_trace.take(include_open=True)
