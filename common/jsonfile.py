@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
+
+from pydantic import BaseModel, ValidationError
+
+M = TypeVar("M", bound=BaseModel)
 
 
 def read_json_object(path: str | Path, label: str, error: type[Exception]) -> dict[str, Any]:
@@ -21,3 +25,15 @@ def read_json_object(path: str | Path, label: str, error: type[Exception]) -> di
     if not isinstance(data, dict):
         raise error(f"{where}: expected a JSON object, got {type(data).__name__}")
     return data
+
+
+def load_json_model(path: str | Path, label: str, model: type[M], error: type[Exception]) -> M:
+    """``model`` validated from the JSON object in ``path``; otherwise ``error`` with one line naming the file and
+    the first bad field: ``<label> '<path>': <field>: <reason>``."""
+    data = read_json_object(path, label, error)
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(v) for v in err["loc"]) or "(top level)"
+        raise error(f"{label} {str(path)!r}: {where}: {err['msg']}") from None

@@ -57,8 +57,6 @@ class Outage:
         self.give_up_s, self.first_delay_s, self.max_delay_s = give_up_s, first_delay_s, max_delay_s
         self.outages = 0
         """Outages ridden out so far (each one logged once as it started and once as it ended)."""
-        self.down_since: float | None = None
-        """time.time() when the current outage began, None while the service answers."""
 
     def call(self, what: str, fn: Callable[[], T]) -> T:
         """``fn()``, retried through transient failures; ``what`` says what was being done, for the log."""
@@ -83,7 +81,6 @@ class Outage:
         now = time.monotonic()
         reason = " ".join(str(exc).split())[:200] or type(exc).__name__
         if start is None:
-            self.down_since = time.time()
             self.log.warning(
                 "%s unreachable while trying to %s (%s); retrying with backoff", self.service, what, reason
             )
@@ -94,5 +91,4 @@ class Outage:
 
     def _recovered(self, what: str, start: float) -> None:
         self.outages += 1
-        self.down_since = None
         self.log.warning("%s reachable again after %.1f s (%s)", self.service, time.monotonic() - start, what)

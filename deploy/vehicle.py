@@ -17,11 +17,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from common.action_space import MAX_STEERING_DEG
 from common.car_calibration import CarCalibration
-from common.jsonfile import read_json_object
+from common.jsonfile import load_json_model
 
 
 class VehicleCalibrationError(ValueError):
@@ -96,13 +96,7 @@ class MotorCommand:
 
 def load_vehicle_calibration(path: str | Path) -> VehicleCalibration:
     """Read ``vehicle.json``; VehicleCalibrationError naming the file and the bad field."""
-    data = read_json_object(path, "vehicle calibration", VehicleCalibrationError)
-    try:
-        return VehicleCalibration.model_validate(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(v) for v in err["loc"]) or "(top level)"
-        raise VehicleCalibrationError(f"vehicle calibration {str(path)!r}: {where}: {err['msg']}") from None
+    return load_json_model(path, "vehicle calibration", VehicleCalibration, VehicleCalibrationError)
 
 
 def steering_output(cal: VehicleCalibration, steering_deg: float) -> float:

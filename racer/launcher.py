@@ -21,7 +21,7 @@ from rich.live import Live
 from common.config import RunConfig
 from common.keys import Keys
 from common.redis_util import connect, connect_checked, redact
-from model_store import open_store
+from model_store import LocalStore, open_store
 from racer.embedded_redis import EmbeddedRedis
 
 
@@ -163,7 +163,9 @@ def robust_streak(summaries: list[dict]) -> int:
 
 def _check_store(store: str, endpoint: str | None) -> None:
     """Fail before starting anything on a bad store URI, a missing bucket or missing credentials (StoreError)."""
-    next(iter(open_store(store, endpoint).list("runs/")), None)
+    opened = open_store(store, endpoint)  # a bad URI fails here
+    if not isinstance(opened, LocalStore):  # ask S3 for one key; a local folder is made when first written
+        next(iter(opened.list("runs/")), None)
 
 
 def _worker_args(run_id: str, k: int, common: list[str]) -> list[str]:

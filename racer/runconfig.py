@@ -5,13 +5,11 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from pydantic import ValidationError
-
 from common.action_space import default_action_space, load_action_space
 from common.car_calibration import CarCalibration, load_calibration
 from common.config import EnvConfig, PolicyConfig, RandomizationConfig, RunConfig, network_from_metadata
 from common.hyperparams import Hyperparameters, load_hyperparameters
-from common.jsonfile import read_json_object
+from common.jsonfile import load_json_model
 from sim.reward import check_reward_function, example_path, load_reward_function
 from sim.track import load_track
 
@@ -65,11 +63,4 @@ class RandomizationFileError(ValueError):
 
 def load_randomization(path: str | Path) -> RandomizationConfig:
     """Read a randomization JSON file; RandomizationFileError naming the file and the bad field."""
-    p = Path(path)
-    data = read_json_object(p, "randomization file", RandomizationFileError)
-    try:
-        return RandomizationConfig.model_validate(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(v) for v in err["loc"]) or "(top level)"
-        raise RandomizationFileError(f"randomization file {str(p)!r}: {where}: {err['msg']}") from None
+    return load_json_model(path, "randomization file", RandomizationConfig, RandomizationFileError)

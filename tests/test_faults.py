@@ -103,15 +103,20 @@ def test_worker_killed_mid_segment_is_named_and_a_restarted_worker_rejoins(tmp_p
         stop(*workers, trainer)
 
 
+def s3_behind_proxy(s3_server: str, run_id: str) -> tuple[TcpProxy, str, RunStore]:
+    """A proxy in front of the moto server (for the trainer, whose store calls a test cuts or holds), the run's
+    S3 prefix, and a RunStore that talks to moto directly (for the test's own reads)."""
+    host, port = s3_server.removeprefix("http://").split(":")
+    prefix = f"s3://{S3_BUCKET}/{run_id}"
+    return TcpProxy((host, int(port))), prefix, RunStore(open_store(prefix, s3_server))
+
+
 def test_trainer_killed_mid_checkpoint_upload_resumes_with_its_state(tmp_path, redis_url, s3_server):
     run_id = "kill-trainer"
     config = write_run(tmp_path, run_id, keep_checkpoints=100)
-    host, port = s3_server.removeprefix("http://").split(":")
-    proxy = TcpProxy((host, int(port)))
-    prefix = f"s3://{S3_BUCKET}/{run_id}"
+    proxy, prefix, runs = s3_behind_proxy(s3_server, run_id)
     trainer_store = store_args(prefix, proxy.url)
     r, keys = redis.Redis.from_url(redis_url), Keys(run_id)
-    runs = RunStore(open_store(prefix, s3_server))
     log = tmp_path / "trainer.log"
     trainer = spawn_trainer(config, redis_url, trainer_store, log)
     worker = spawn_worker(run_id, 0, redis_url, store_args(prefix, s3_server), tmp_path / "worker.log")
@@ -202,11 +207,8 @@ def test_redis_restart_is_ridden_out_by_trainer_and_worker(tmp_path):
 def test_store_outage_during_a_checkpoint_upload_loses_nothing(tmp_path, redis_url, s3_server):
     run_id = "store-outage"
     config = write_run(tmp_path, run_id, keep_checkpoints=100)
-    host, port = s3_server.removeprefix("http://").split(":")
-    proxy = TcpProxy((host, int(port)))
-    prefix = f"s3://{S3_BUCKET}/{run_id}"
+    proxy, prefix, runs = s3_behind_proxy(s3_server, run_id)
     r, keys = redis.Redis.from_url(redis_url), Keys(run_id)
-    runs = RunStore(open_store(prefix, s3_server))
     log = tmp_path / "trainer.log"
     trainer = spawn_trainer(config, redis_url, store_args(prefix, proxy.url), log)
     worker = spawn_worker(run_id, 0, redis_url, store_args(prefix, s3_server), tmp_path / "worker.log")
