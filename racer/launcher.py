@@ -49,8 +49,8 @@ class TrainOptions:
     eval_tracks: list[str] = field(default_factory=list)
     """Tracks the evaluator drives (empty = the run's track)."""
     eval_nice: int = 5
-    """The evaluator's nice increment: on a machine shared with the trainer and workers it takes the CPU they
-    leave, so picking checkpoints never slows training (README, Speed)."""
+    """The evaluator's nice increment: on a machine shared with the trainer and workers it yields the CPU to them.
+    It still takes a share: an evaluation running during a PPO update slowed that update by up to ~50 %."""
     stop_when_robust: int | None = None
     """Stop once this many consecutive evaluated checkpoints complete every evaluation lap."""
     worker_restarts: int = 3
