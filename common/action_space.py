@@ -7,6 +7,7 @@ the DeepRacer simapp: steering to ±30°, speed to [0.1, 4] m/s.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Literal
@@ -100,19 +101,27 @@ class ActionSpace(BaseModel):
         """Number of discrete actions (0 for a continuous space)."""
         return len(self.action_space) if self.discrete else 0
 
-    def command(self, action: int | tuple[float, float] | list[float]) -> tuple[float, float]:
-        """The (steering_deg, speed_mps) command for an action index or a continuous pair, clipped."""
+    def values(self, action: int | tuple[float, float] | list[float]) -> tuple[float, float]:
+        """(steering_deg, speed_mps) of an action index or a continuous pair, before the car's limits.
+
+        This is what DeepRacer's reward function is told (simapp ``set_reward_and_metrics``: ``float(json_actions
+        [...])``): a listed 4.89 m/s or 12 m/s stays as listed. A continuous pair is clipped to the space's ranges.
+        """
         if self.discrete:
             i = int(action)  # type: ignore[arg-type]
             if not 0 <= i < self.n:
                 raise IndexError(f"action {i} is outside 0..{self.n - 1}")
             a = self.action_space[i]
-            return clip_command(a.steering_angle, a.speed)
+            return float(a.steering_angle), float(a.speed)
         steer, speed = (float(v) for v in action)  # type: ignore[union-attr]
         rng = self.action_space
         steer = min(max(steer, rng.steering_angle.low), rng.steering_angle.high)
         speed = min(max(speed, rng.speed.low), rng.speed.high)
-        return clip_command(steer, speed)
+        return steer, speed
+
+    def command(self, action: int | tuple[float, float] | list[float]) -> tuple[float, float]:
+        """The (steering_deg, speed_mps) command the car gets for an action: its values within the car's limits."""
+        return clip_command(*self.values(action))
 
     def to_json(self) -> str:
         """model_metadata.json text, as DeepRacer writes it."""
@@ -120,7 +129,10 @@ class ActionSpace(BaseModel):
 
 
 def clip_command(steering_deg: float, speed_mps: float) -> tuple[float, float]:
-    """Clip a command to the car's limits, like the DeepRacer simapp."""
+    """Clip a command to the simulated car's physical limits (steering ±30°, speed 0.1–4 m/s).
+
+    The simapp clamps only the minimum speed and lets the car model cap the rest; the reward function is told the
+    action's own values either way (``ActionSpace.values``)."""
     if not (math.isfinite(steering_deg) and math.isfinite(speed_mps)):
         raise ValueError(f"command ({steering_deg}, {speed_mps}) is not finite")
     steer = min(max(float(steering_deg), -MAX_STEERING_DEG), MAX_STEERING_DEG)
@@ -138,14 +150,40 @@ def default_action_space() -> ActionSpace:
     return ActionSpace(action_space_type="discrete", action_space=actions)
 
 
+SUPPORTED_SENSORS: tuple[list[str], ...] = (["FRONT_FACING_CAMERA"],)
+"""The model_metadata ``sensor`` lists racer can honour (stereo cameras and LiDAR are not built yet)."""
+SUPPORTED_ALGORITHMS: tuple[str, ...] = ("clipped_ppo",)
+"""The ``training_algorithm`` values racer can honour (the simapp also has ``sac``)."""
+NEURAL_NETWORKS: tuple[str, ...] = (
+    "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW",
+    "DEEP_CONVOLUTIONAL_NETWORK",
+    "DEEP_CONVOLUTIONAL_NETWORK_DEEP",
+)
+"""The ``neural_network`` values DeepRacer's simapp knows (``markov/architecture``), all of which racer builds."""
+
+
+def check_supported(space: ActionSpace, where: str) -> None:
+    """Refuse, in one line naming ``where``, the key and the value, what racer would otherwise silently not honour."""
+    checks = (
+        ("sensor", space.sensor, [list(s) for s in SUPPORTED_SENSORS], "stereo cameras and LiDAR are not built yet"),
+        ("training_algorithm", space.training_algorithm, list(SUPPORTED_ALGORITHMS), "racer trains clipped PPO"),
+        ("neural_network", space.neural_network, list(NEURAL_NETWORKS), "DeepRacer's three camera networks"),
+    )
+    for key, value, supported, why in checks:
+        if value not in supported:
+            allowed = " or ".join(json.dumps(v) for v in supported)
+            raise ActionSpaceError(f"{where}: {key} = {json.dumps(value)} is not supported ({why}); use {allowed}")
+
+
 def load_action_space(path: str | Path) -> ActionSpace:
-    """Read a DeepRacer ``model_metadata.json``; raise ActionSpaceError naming the file if it is unusable."""
+    """Read a DeepRacer ``model_metadata.json``; raise ActionSpaceError naming the file if it is unusable or asks
+    for what racer cannot honour (another sensor, SAC)."""
     p = Path(path)
     data = read_json_object(p, "action space file", ActionSpaceError)
     if "action_space_type" not in data:  # older DeepRacer files have no type: infer it
         data["action_space_type"] = "continuous" if isinstance(data.get("action_space"), dict) else "discrete"
     try:
-        return ActionSpace.model_validate(data)
+        space = ActionSpace.model_validate(data)
     except ValidationError as exc:
         # The action_space field is a union: report the error of the member the file's type asks for.
         member = "ContinuousSpace" if data.get("action_space_type") == "continuous" else "list[DiscreteAction]"
@@ -153,3 +191,5 @@ def load_action_space(path: str | Path) -> ActionSpace:
         err = next((e for e in errors if member in [str(v) for v in e["loc"]]), errors[0])
         where = ".".join(str(v) for v in err["loc"]) or "file"
         raise ActionSpaceError(f"action space file {str(p)!r}: {where}: {err['msg']}") from None
+    check_supported(space, f"action space file {str(p)!r}")
+    return space

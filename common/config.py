@@ -99,6 +99,9 @@ class RandomizationConfig(_Strict):
     """With round-robin starts, the lap is split into this many start points (DeepRacer: 20 episodes)."""
     reverse_prob: float = Field(0.0, ge=0, le=1)
     """Probability of driving the track in the reverse direction in an episode."""
+    alternate_direction: bool = False
+    """DeepRacer's ``alternate_driving_direction``: episodes alternate between the two directions (first forward);
+    takes the place of ``reverse_prob``."""
     action_noise: float = Field(0.0, ge=0, le=1)
     """Uniform noise on each command, as a fraction of it (0.1 = ±10 % of steering and speed)."""
     lighting: float = Field(0.0, ge=0, le=1)
@@ -172,3 +175,6 @@ class RunConfig(_Strict):
     """Base seed: worker k seeds its env with seed + 1000·k, the trainer uses seed."""
     keep_checkpoints: int = Field(5, ge=2)
     """Whole checkpoints kept besides the one ``best`` names (each is ~70 MB with the default CNN and Adam state)."""
+    pretrained: str | None = Field(None, pattern=r"^[A-Za-z0-9._-]+:(best|latest|[0-9]+)$")
+    """Start from another run's weights, ``RUN:CHECKPOINT`` (best, latest or a version) in the same store: DRfC's
+    pretrained model, the console's clone. The optimizer starts fresh; the action space must be the same."""

@@ -1,8 +1,12 @@
 """DeepRacer's ``hyperparameters.json``, read and written in DeepRacer's own format.
 
-DeepRacer's keys are accepted exactly as DeepRacer writes them. racer adds four PPO knobs of its own
-(``clip_epsilon``, ``gae_lambda``, ``value_loss_coef``, ``max_grad_norm``) that may also appear in the
-file. Any other key is an error, so that a typo (``learning_rate`` for ``lr``) is caught instead of
+Every key the DeepRacer simapp reads is accepted, with the simapp's default when it is missing
+(``markov/sagemaker_graph_manager.py``, ``get_updated_hyper_parameters``; ``training_worker.py`` for
+``max_sample_count`` and ``sampling_frequency``). Keys that change nothing in racer's clipped PPO are accepted
+and reported by :meth:`Hyperparameters.ignored` (``sac_alpha``; ``term_cond_avg_score``, which the simapp reads
+but never uses; ε-greedy settings with categorical exploration). racer adds four PPO knobs of its own
+(``clip_epsilon``, ``gae_lambda``, ``value_loss_coef``, ``max_grad_norm``; the simapp hard-codes 0.2 and 0.95 for
+the first two). Any other key is an error, so that a typo (``learning_rate`` for ``lr``) is caught instead of
 silently ignored.
 """
 
@@ -32,6 +36,8 @@ DEEPRACER_KEYS: tuple[str, ...] = (
     "term_cond_avg_score",
     "term_cond_max_episodes",
 )
+SIMAPP_ONLY_KEYS: tuple[str, ...] = ("sac_alpha", "max_sample_count", "sampling_frequency")
+"""Keys the simapp reads that racer accepts and does not use (SAC's entropy weight; the simapp's sample collector)."""
 RACER_KEYS: tuple[str, ...] = ("clip_epsilon", "gae_lambda", "value_loss_coef", "max_grad_norm")
 
 HUBER = "huber"
@@ -53,14 +59,16 @@ class Hyperparameters(BaseModel):
     """Entropy bonus coefficient, dimensionless (weight of the mean policy entropy in the loss)."""
     discount_factor: float = Field(0.999, gt=0, le=1)
     """Discount γ per env step, dimensionless."""
-    e_greedy_value: float = Field(1.0, ge=0, le=1)
-    """DeepRacer's initial ε for ε-greedy exploration, a probability (kept for compatibility; PPO samples)."""
+    e_greedy_value: float = Field(0.05, ge=0, le=1)
+    """Final ε of DeepRacer's ε-greedy schedule, a probability; used only with ``exploration_type`` e-greedy."""
     epsilon_steps: int = Field(10000, ge=0)
-    """DeepRacer's ε decay length, env steps (kept for compatibility)."""
+    """Length of DeepRacer's ε schedule, env steps; used only with ``exploration_type`` e-greedy."""
     exploration_type: Literal["categorical", "additive_noise"] = "categorical"
-    """Exploration: ``categorical`` (sample a discrete policy) or ``additive_noise`` (continuous policy)."""
-    loss_type: Literal["huber", "mean squared error"] = HUBER
-    """Value-function loss: ``huber`` or ``mean squared error`` (``mse`` is accepted and stored as the latter)."""
+    """Exploration: ``categorical`` (sample the policy; DeepRacer's continuous spaces add Gaussian noise under this
+    name too) or ``additive_noise``. DeepRacer's ``e-greedy`` is refused: racer's PPO samples its policy."""
+    loss_type: Literal["huber", "mean squared error"] = MEAN_SQUARED_ERROR
+    """Value-function loss: ``huber`` or ``mean squared error`` (``mse`` is accepted and stored as the latter);
+    the simapp's default is mean squared error."""
     lr: float = Field(0.0003, gt=0)
     """Adam learning rate, per gradient step."""
     num_episodes_between_training: int = Field(20, ge=1)
@@ -69,10 +77,17 @@ class Hyperparameters(BaseModel):
     """Passes over the collected batch per policy update, epochs."""
     stack_size: int = Field(1, ge=1, le=8)
     """Consecutive camera frames stacked into one observation, frames."""
-    term_cond_avg_score: float = 350.0
-    """Stop training when the mean episode reward reaches this, reward units."""
-    term_cond_max_episodes: int = Field(1000, ge=1)
-    """Stop training after this many episodes, episodes."""
+    term_cond_avg_score: float = 100000.0
+    """Read and kept, never used: the simapp reads it and stops on nothing (its default is 100000)."""
+    term_cond_max_episodes: int = Field(100000, ge=1)
+    """Stop after this many policy updates: despite its name, the simapp's training loop counts training
+    iterations against it (``training_worker.py``: ``steps += 1`` per ``graph_manager.train()``)."""
+    sac_alpha: float = Field(0.2, gt=0)
+    """SAC's entropy weight; accepted for DeepRacer's files, unused by racer's clipped PPO."""
+    max_sample_count: int = Field(0, ge=0)
+    """The simapp's sample collector (samples uploaded for debugging); accepted, unused."""
+    sampling_frequency: int = Field(1, ge=1)
+    """The simapp's sample collector's frequency; accepted, unused."""
 
     clip_epsilon: float = Field(0.2, gt=0, lt=1)
     """racer: PPO clip range ε of the probability ratio, dimensionless."""
@@ -94,8 +109,30 @@ class Hyperparameters(BaseModel):
     @field_validator("loss_type", mode="before")
     @classmethod
     def _mse_alias(cls, value: Any) -> Any:
-        # "mse" is common shorthand; store DeepRacer's spelling so to_json() writes what DeepRacer reads.
+        # The simapp lower-cases it; "mse" is common shorthand. Store DeepRacer's spelling for to_json().
+        value = value.lower().strip() if isinstance(value, str) else value
         return MEAN_SQUARED_ERROR if value == "mse" else value
+
+    @field_validator("exploration_type", mode="before")
+    @classmethod
+    def _exploration(cls, value: Any) -> Any:
+        value = value.lower().strip() if isinstance(value, str) else value
+        if value == "e-greedy":
+            raise ValueError("e-greedy exploration is not supported: racer's PPO samples its policy (use categorical)")
+        return value
+
+    def ignored(self) -> list[str]:
+        """The keys given in the file that change nothing in racer's training, with why; for a one-time log."""
+        given = self.model_fields_set
+        notes = [f"{key} (not used by clipped PPO)" for key in ("sac_alpha",) if key in given]
+        notes += [f"{key} (the simapp's sample collector)" for key in SIMAPP_ONLY_KEYS[1:] if key in given]
+        if "term_cond_avg_score" in given:
+            notes.append("term_cond_avg_score (DeepRacer reads it and never stops on it)")
+        if self.exploration_type == "categorical":
+            notes += [
+                f"{key} (only for e-greedy exploration)" for key in ("e_greedy_value", "epsilon_steps") if key in given
+            ]
+        return notes
 
     @property
     def value_loss_kind(self) -> Literal["huber", "mse"]:
@@ -135,7 +172,7 @@ def _describe(exc: ValidationError) -> str:
     for err in exc.errors():
         key = ".".join(str(v) for v in err["loc"]) or "file"
         if err["type"] == "extra_forbidden":
-            parts.append(f"unknown key {key!r} (allowed: {', '.join(DEEPRACER_KEYS + RACER_KEYS)})")
+            parts.append(f"unknown key {key!r} (allowed: {', '.join(DEEPRACER_KEYS + SIMAPP_ONLY_KEYS + RACER_KEYS)})")
         else:
             parts.append(f"{key} = {json.dumps(err['input'], default=repr)}: {err['msg']}")
     return "; ".join(parts)

@@ -155,14 +155,14 @@ def row_from_step(
     """A row from the env's ``info`` (of a step, or of a reset for the ``prepare`` row).
 
     The pose, progress, waypoint and time come from ``info["params"]``; ``steer``/``throttle`` are ``command``
-    (steering deg, speed m/s), by default ``info["command"]``. ``steps`` is the env's step count + 1: DeepRacer counts
-    the ``prepare`` row as step 1.
+    (steering deg, speed m/s), by default ``info["command"]``. ``steps`` is ``params["steps"]``, the env's step count
+    + 1: DeepRacer counts the ``prepare`` row as step 1.
     """
     p = info["params"]
     steer, speed = command if command is not None else info["command"]
     return simtrace_row(
         episode=episode,
-        steps=int(p["steps"]) + 1,
+        steps=int(p["steps"]),
         x=p["x"],
         y=p["y"],
         yaw_deg=p["heading"],

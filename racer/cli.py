@@ -116,8 +116,8 @@ CarCalibrationOpt = Annotated[
 
 @app.command("train")
 def train_cmd(
-    track: Annotated[str, typer.Option(help="Track name or .npy path.")] = "reinvent_base",
-    workers: Annotated[int, typer.Option(min=1, help="Rollout worker processes.")] = 2,
+    track: Annotated[str | None, typer.Option(help="Track name or .npy path [default: reinvent_base].")] = None,
+    workers: Annotated[int | None, typer.Option(min=1, help="Rollout worker processes [default: 2].")] = None,
     time_limit: Annotated[str | None, typer.Option("--time-limit", help="Stop after this long (90s, 5m, 2h).")] = None,
     run_id: Annotated[str | None, typer.Option("--run-id", help="Run id (default: run-<UTC time>).")] = None,
     store: StoreOpt = ".",
@@ -143,17 +143,29 @@ def train_cmd(
     precision: Annotated[
         str, typer.Option(help="The trainer's PPO update arithmetic: auto (bf16 where native), fp32, bf16.")
     ] = "auto",
+    from_drfc: Annotated[
+        Path | None,
+        typer.Option("--from-drfc", help="A DeepRacer-for-Cloud folder: custom_files/ and run.env (options win)."),
+    ] = None,
+    pretrained: Annotated[
+        str | None,
+        typer.Option(help="Start from another run's weights in the store: RUN[:best|latest|N] (DRfC pretrained)."),
+    ] = None,
 ) -> None:
     """Train: an embedded Redis (unless --redis), the PPO trainer and N rollout workers on this machine."""
     from common.config import RunConfig, check_precision
     from model_store import RunStore, open_store
+    from racer.check import drfc_lines, merge_inputs
     from racer.launcher import TrainOptions, new_run_id, run_train
-    from racer.runconfig import build_run, parse_duration
+    from racer.runconfig import build_run, check_pretrained, parse_duration
 
     try:
         limit = parse_duration(time_limit) if time_limit else None
         check_precision(precision)
-        rid = run_id or new_run_id()
+        inputs = merge_inputs(track, reward_fn, action_space, hyperparams, from_drfc)
+        track, workers = inputs.track, workers or inputs.workers or 2
+        eval_episodes = inputs.eval_episodes if eval_episodes == 3 and inputs.eval_episodes else eval_episodes
+        rid = run_id or inputs.run_id or new_run_id()
         if resume:
             if not run_id:
                 fail("--resume needs --run-id")
@@ -163,18 +175,26 @@ def train_cmd(
         else:
             if RunStore(open_store(store, s3_endpoint)).newest_whole(rid) is not None:
                 fail(f"run {rid!r} already exists in {store}: add --resume to continue it, or choose another --run-id")
+            notes: list[str] = []
             run, files = build_run(
                 rid,
                 track,
-                str(reward_fn) if reward_fn else None,
-                str(action_space) if action_space else None,
-                str(hyperparams) if hyperparams else None,
+                inputs.reward_fn,
+                inputs.action_space,
+                inputs.hyperparams,
                 str(randomization) if randomization else None,
                 worker_track,
                 seed,
                 str(car_calibration) if car_calibration else None,
+                notes=notes,
+                randomization_update=inputs.randomization,
             )
             run = run.model_copy(update={"max_policy_lag": max_policy_lag, "segment_steps": segment_steps})
+            source = pretrained or inputs.pretrained
+            if source:
+                run = check_pretrained(RunStore(open_store(store, s3_endpoint)), run, files, source)
+            for line in notes + drfc_lines(inputs.drfc):
+                console.print(line, highlight=False, soft_wrap=True)
         opts = TrainOptions(
             workers,
             redis_url,
@@ -198,6 +218,28 @@ def train_cmd(
     except RuntimeError as exc:
         fail(str(exc))
     console.print(f"done: {status.get('iteration', 0)} iterations, {status.get('env_steps', 0)} env steps")
+
+
+@app.command("check")
+def check_cmd(
+    reward_fn: Annotated[Path | None, typer.Option("--reward-fn", help="DeepRacer reward function .py.")] = None,
+    action_space: Annotated[Path | None, typer.Option("--action-space", help="DeepRacer model_metadata.json.")] = None,
+    hyperparams: Annotated[Path | None, typer.Option("--hyperparams", help="DeepRacer hyperparameters.json.")] = None,
+    track: Annotated[str | None, typer.Option(help="Track name or .npy path [default: reinvent_base].")] = None,
+    from_drfc: Annotated[
+        Path | None, typer.Option("--from-drfc", help="A DeepRacer-for-Cloud folder: custom_files/ and run.env.")
+    ] = None,
+) -> None:
+    """Validate DeepRacer files exactly as racer train would, start nothing, and say what racer does with each."""
+    from racer.check import check_files, merge_inputs
+
+    try:
+        lines = check_files(merge_inputs(track, reward_fn, action_space, hyperparams, from_drfc))
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+    for line in lines:
+        console.print(line, highlight=False, soft_wrap=True)
+    console.print("ok: racer train would accept these files", highlight=False)
 
 
 @app.command("trainer")

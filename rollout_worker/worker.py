@@ -225,7 +225,7 @@ class RolloutWorker:
         status = info["episode_status"]
         lap = p["sim_time"] if status == "lap_complete" else None
         return EpisodeSummary(
-            self._episode, p["steps"], p["progress"], self._ep_reward, status, self.env.track.name, lap
+            self._episode, info["steps"], p["progress"], self._ep_reward, status, self.env.track.name, lap
         )
 
     def _new_episode(self) -> None:

@@ -22,7 +22,7 @@ def drive_random(config: EnvConfig, episodes: int, seed: int = 0) -> list[dict]:
         rows.append(
             {
                 "episode": ep,
-                "steps": p["steps"],
+                "steps": info["steps"],
                 "status": info["episode_status"],
                 "progress": p["progress"],
                 "return": total,

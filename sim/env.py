@@ -26,7 +26,7 @@ from common.config import EnvConfig
 from sim.augment import augment_frame, needs_color
 from sim.camera import CameraSpec, GroundCamera, MujocoCamera
 from sim.physics import CarPhysics
-from sim.reward import RewardFunction, check_reward_function, example_path, load_reward_function
+from sim.reward import RewardFunction, RewardFunctionError, example_path, load_reward_function
 from sim.task import RacingTask, Status, StepResult
 from sim.texture import (
     DEEPRACER_PALETTE,
@@ -50,7 +50,8 @@ class RacerEnv(gym.Env):
     Keyword arguments are the fields of :class:`common.config.EnvConfig` (or pass ``config=``).
     ``reset(options=...)`` accepts ``start_index`` (waypoint) and ``reverse`` (bool) to pin the start.
     ``info`` carries ``params`` (DeepRacer's reward-function input), ``reward_terms``,
-    ``episode_status``, ``progress`` and ``command`` (the steering/speed actually applied).
+    ``episode_status``, ``progress``, ``steps`` (env steps in this episode; ``params["steps"]`` is one more, as
+    DeepRacer counts its prepare step) and ``command`` (the steering/speed actually applied).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_HZ}
@@ -66,7 +67,6 @@ class RacerEnv(gym.Env):
         self.reward_fn: RewardFunction = load_reward_function(
             cfg.reward_fn or example_path("default"), time_limit_s=cfg.reward_time_limit_s
         )
-        check_reward_function(self.reward_fn)
         self._build_world()
         self.task = RacingTask(self.track, road=RoadMask(self.track, self.frame))
         self.observation_space = gym.spaces.Box(0, 255, OBS_SHAPE, np.uint8)
@@ -106,7 +106,8 @@ class RacerEnv(gym.Env):
         super().reset(seed=seed)
         options = options or {}
         dr, rng = self.config.randomization, self.np_random
-        reverse = bool(options.get("reverse", rng.random() < dr.reverse_prob))
+        drawn = self._episodes % 2 == 1 if dr.alternate_direction else rng.random() < dr.reverse_prob
+        reverse = bool(options.get("reverse", drawn))
         index = self._start_index(reverse, options.get("start_index"))
         self._randomize(rng)
         pose = self.task.start_pose(index, reverse)
@@ -121,14 +122,16 @@ class RacerEnv(gym.Env):
         """Apply one action for 1/15 s and return (obs, reward, terminated, truncated, info)."""
         if self._last is None:
             raise RuntimeError("call reset() before step()")
-        command = self.actions.command(action)
+        # The reward function is told the action's own values; the car gets them within its limits.
+        requested = self.actions.values(action)
+        command = clip_command(*requested)
         self._command = command
         self.physics.command(*self._noisy(command))
         self.physics.step()
         ph = self.physics
-        result = self.task.observe(ph.pose, ph.wheel_positions(), ph.upright, ph.time, command)
+        result = self.task.observe(ph.pose, ph.wheel_positions(), ph.upright, ph.time, requested)
         reward = self.reward_fn(result.params, step=result.params["steps"])
-        truncated = not result.terminated and result.params["steps"] >= self.config.time_limit_steps
+        truncated = not result.terminated and self.task.steps >= self.config.time_limit_steps
         status = Status.TIME_UP if truncated else result.status
         self._last = result
         info = self._info(result, reward, status)
@@ -200,6 +203,7 @@ class RacerEnv(gym.Env):
             "reward_terms": {"reward_function": reward},
             "episode_status": status or result.status,
             "progress": result.params["progress"],
+            "steps": self.task.steps,
             "command": self._command,
             "pose": self.physics.pose,
         }
@@ -213,6 +217,50 @@ def _lighting_gain(rng: np.random.Generator, strength: float) -> np.ndarray:
     ramp = (np.cos(angle) * xx + np.sin(angle) * yy) / np.sqrt(2)
     gain = (1 + rng.uniform(-strength, strength)) * (1 + 0.5 * strength * ramp)
     return gain.astype(np.float32)
+
+
+PREFLIGHT_STEPS = 15
+"""Steps (1 s at 15 Hz) that the pre-start check drives in each direction."""
+
+
+def preflight_reward(config: EnvConfig, steps: int = PREFLIGHT_STEPS) -> None:
+    """Call the run's reward function as training will, before training: raise RewardFunctionError if it fails.
+
+    A throwaway env on the run's own track and action space loads its own copy of the reward module, so
+    whatever the function caches on its first calls (a racing line, a class instance) is never seen by
+    training. It drives straight at the slowest speed from the first start waypoint for ``steps`` steps,
+    in both directions when the run drives both, so the function gets the params of a real episode.
+    """
+    env = RacerEnv(config=config.model_copy(update={"camera": "ground"}))
+    try:
+        directions = (False, True) if _drives_reversed(config) else (False,)
+        for reverse in directions:
+            env.reset(seed=0, options={"start_index": 0, "reverse": reverse})
+            action = _gentlest_action(env.actions)
+            for _ in range(steps):
+                try:
+                    _, _, terminated, truncated, _ = env.step(action)
+                except RewardFunctionError as exc:
+                    raise RewardFunctionError(f"{exc} (checked before training)") from exc
+                if terminated or truncated:
+                    break
+    finally:
+        env.close()
+
+
+def _drives_reversed(config: EnvConfig) -> bool:
+    dr = config.randomization
+    return dr.reverse_prob > 0 or dr.alternate_direction
+
+
+def _gentlest_action(actions: ActionSpace) -> Any:
+    """The discrete action closest to straight at the lowest speed, or the continuous space's equivalent."""
+    if actions.discrete:
+        listed = actions.action_space
+        return min(range(actions.n), key=lambda i: (abs(listed[i].steering_angle), listed[i].speed))
+    rng = actions.action_space
+    steer = min(max(0.0, rng.steering_angle.low), rng.steering_angle.high)
+    return np.array([steer, rng.speed.low], np.float32)
 
 
 def make_env(track: str | Path = "reinvent_base", **kwargs: Any) -> RacerEnv:

@@ -13,7 +13,6 @@ import importlib.util
 import inspect
 import itertools
 import math
-import numbers
 import re
 import signal
 import sys
@@ -131,12 +130,13 @@ class RewardFunction:
     def __call__(self, params: dict, step: int | None = None) -> float:
         """Return the user's reward for ``params`` as a float; raise RewardFunctionError on any failure.
 
-        The function gets a shallow copy of ``params`` so that assigning keys cannot change the
-        caller's dict (the lists inside are shared: copying waypoints every step would be costly).
+        Like the simapp (``rollout_agent_ctrl.judge_action`` calls ``reward_function(copy.deepcopy(params))``),
+        every call gets its own copy of ``params``, containers included: a function that changes
+        ``params['waypoints']`` cannot change what the next step sees.
         """
         where = _where(self.path, step)
         try:
-            value = self._call_limited(dict(params))
+            value = self._call_limited(fresh_params(params))
         except _RewardTimeout:
             suffix = "" if step is None else f" at step {step}"
             raise RewardFunctionError(
@@ -190,23 +190,44 @@ class RewardFunction:
         return result
 
 
+REWARD_LIMIT = 1e5
+"""The simapp stops a run whose reward function returns a value outside [-1e5, 1e5]."""
+
+
+def fresh_params(params: dict) -> dict:
+    """A copy of ``params`` whose lists and dicts are new: the same result as ``copy.deepcopy`` for the params
+    dict (its tuples hold only numbers, so they can be shared), at a fraction of its cost per step."""
+    return {key: _fresh(value) for key, value in params.items()}
+
+
+def _fresh(value: Any) -> Any:
+    if isinstance(value, list):
+        return [_fresh(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _fresh(v) for k, v in value.items()}
+    return value
+
+
 def _to_reward(value: object, where: str) -> float:
-    """Check a returned reward is a finite real number and convert it to float."""
-    # bool is an int subclass but True/False as a reward is almost always a bug (a returned
-    # condition), and numpy's bool_ is not a numbers.Real; numpy ints and floats are.
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+    """The reward as the simapp takes it: ``float(value)``, so bools, ints and numpy scalars are accepted.
+
+    Refused: what ``float()`` refuses (None, lists, a non-numeric string), a value outside
+    [-REWARD_LIMIT, REWARD_LIMIT] (the simapp stops there too), and NaN, which the simapp's range check lets
+    through but which would poison every advantage in the batch.
+    """
+    try:
+        reward = float(value)  # type: ignore[arg-type]
+    except (OverflowError, ValueError, TypeError) as exc:
         return_desc = _one_line(repr(value))
         raise RewardFunctionError(
-            f"{where} returned {return_desc} ({type(value).__name__}); it must return a real number"
-        )
-    try:
-        reward = float(value)
-    except (OverflowError, ValueError, TypeError) as exc:
+            f"{where} returned {return_desc} ({type(value).__name__}), which float() refuses: {_describe(exc)}"
+        ) from None
+    if math.isnan(reward):
+        raise RewardFunctionError(f"{where} returned {reward}; the reward must be a number")
+    if not -REWARD_LIMIT <= reward <= REWARD_LIMIT:
         raise RewardFunctionError(
-            f"{where} returned {type(value).__name__} that is not a float: {_describe(exc)}"
-        ) from exc
-    if not math.isfinite(reward):
-        raise RewardFunctionError(f"{where} returned {reward}; the reward must be finite")
+            f"{where} returned {reward}, outside [-{REWARD_LIMIT:g}, {REWARD_LIMIT:g}] where DeepRacer stops the run"
+        )
     return reward
 
 
@@ -279,52 +300,6 @@ def _check_signature(fn: Callable[..., Any], name: str) -> None:
             f"{name} defines reward_function{signature}, which cannot be called with one argument "
             f"(params): {_one_line(str(exc))}"
         ) from None
-
-
-def check_reward_function(fn: RewardFunction, params: dict | None = None) -> None:
-    """Call ``fn`` once on sample params (default :func:`sample_params`) to catch errors before training."""
-    try:
-        fn(sample_params() if params is None else params)
-    except RewardFunctionError as exc:
-        raise RewardFunctionError(f"{exc} (checked before training)") from exc
-
-
-def sample_params() -> dict[str, Any]:
-    """A plausible DeepRacer params dict with every key of PARAM_KEYS: a car on a 5 m straight track.
-
-    The car is 1.05 m along a track running +x, 2 cm left of the centre line, heading straight
-    down it at 1 m/s after one second (15 steps at DeepRacer's 15 Hz); there are no objects.
-    """
-    waypoints = [(0.5 * i, 0.0) for i in range(11)]
-    return {
-        "all_wheels_on_track": True,
-        "x": 1.05,
-        "y": 0.02,
-        "heading": 0.0,
-        "distance_from_center": 0.02,
-        "projection_distance": 1.05,
-        "progress": 21.0,
-        "steps": 15,
-        "speed": 1.0,
-        "steering_angle": 0.0,
-        "track_width": 0.76,
-        "track_length": 5.0,
-        "waypoints": waypoints,
-        "closest_waypoints": [2, 3],
-        "is_left_of_center": True,
-        "is_reversed": False,
-        "is_crashed": False,
-        "is_offtrack": False,
-        "closest_objects": [0, 0],
-        "objects_location": [],
-        "objects_left_of_center": [],
-        "object_in_camera": False,
-        "objects_speed": [],
-        "objects_heading": [],
-        "objects_distance_from_center": [],
-        "objects_distance": [],
-        "sim_time": 1.0,
-    }
 
 
 def _example_files() -> dict[str, Path]:

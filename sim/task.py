@@ -8,6 +8,7 @@ start, in percent of a lap, starting from base_link's position at the start wayp
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from collections.abc import Callable
@@ -79,8 +80,13 @@ class RacingTask:
         self.track = track
         self._road = road or track.on_track
         self._reversed_track = track.reversed()
-        self._waypoints = {False: _waypoint_list(track), True: _waypoint_list(self._reversed_track)}
+        self._lines = {False: _WaypointLine(track, False), True: _WaypointLine(self._reversed_track, True)}
         self.state: EpisodeState | None = None
+
+    @property
+    def steps(self) -> int:
+        """Env steps taken in this episode (DeepRacer's ``steps`` param is one more: it counts the prepare step)."""
+        return 0 if self.state is None else self.state.steps
 
     def start_pose(self, index: int, reverse: bool) -> Pose:
         """base_link at waypoint ``index`` (of the track in the direction of travel), facing along it."""
@@ -171,29 +177,35 @@ class RacingTask:
         command: tuple[float, float],
     ) -> dict:
         track = st.track
-        seg = int(proj.segment[0])
-        n = len(track.center)
-        nxt = seg + 1 if not (track.closed and seg + 1 == n - 1) else 0
+        line = self._lines[st.reversed]
         lateral = float(proj.lateral[0])
+        s = float(proj.s[0])
+        foot = _foot(track, proj)
+        inner = _nearest_on_border(track.inner, foot, int(proj.segment[0]), track.closed)
+        outer = _nearest_on_border(track.outer, foot, int(proj.segment[0]), track.closed)
         heading = math.degrees(math.atan2(math.sin(pose.yaw), math.cos(pose.yaw)))
         if heading <= -180.0:  # DeepRacer's range is (-180, 180]
             heading += 360.0
+        x, y = float(front[0]), float(front[1])
+        nearer_inner = math.hypot(x - inner[0], y - inner[1]) < math.hypot(x - outer[0], y - outer[1])
         return {
             "all_wheels_on_track": bool(on.all()),
-            "x": float(front[0]),
-            "y": float(front[1]),
+            "x": x,
+            "y": y,
             "heading": heading,
             "distance_from_center": abs(lateral),
-            "projection_distance": float(proj.s[0]),
+            "projection_distance": s,
             "progress": float(min(max(progress, 0.0), 100.0)),
-            "steps": st.steps,
+            # DeepRacer counts the prepare step (the car held at the start, never rewarded) as step 1.
+            "steps": st.steps + 1,
             "speed": float(command[1]),
             "steering_angle": float(command[0]),
-            "track_width": float(track.width_at(proj)[0]),
+            "track_width": math.hypot(inner[0] - outer[0], inner[1] - outer[1]),
             "track_length": track.length,
-            "waypoints": self._waypoints[st.reversed],
-            "closest_waypoints": [seg, nxt],
-            "is_left_of_center": lateral > 0,
+            "waypoints": line.waypoints,
+            "closest_waypoints": line.closest(s),
+            # simapp: left of centre = nearer the inner border than the outer one, flipped on a clockwise lap.
+            "is_left_of_center": nearer_inner ^ (not line.ccw),
             "is_reversed": st.reversed,
             "is_crashed": False,
             "is_offtrack": not bool(on.any()),
@@ -209,13 +221,73 @@ class RacingTask:
         }
 
 
+class _WaypointLine:
+    """The reward function's ``waypoints`` and ``closest_waypoints`` for one direction, computed as the simapp does.
+
+    simapp (``markov/track_geom/track_data.py``, ``TrackLine`` and ``find_prev_next`` in ``track_geom/utils.py``):
+    the waypoints are the file's centre-line rows in the direction of travel, repeated rows and the closing row
+    of a loop included; ``closest_waypoints`` is ``[i, i + 1]`` for the row pair whose arc-length interval holds
+    the car's projection, found with ``bisect_right``, so a car projecting exactly onto waypoint i gets
+    ``[i, i + 1]``, on a loop's last segment ``[n - 2, n - 1]``, and ``[n - 1, 0]`` only at the very end.
+    """
+
+    def __init__(self, track: Track, reverse: bool) -> None:
+        rows = track.file_rows[:, :2]
+        self.waypoints = [(float(x), float(y)) for x, y in rows]
+        seg = np.linalg.norm(np.diff(rows, axis=0), axis=1)
+        # The same sums, in the same order, as Track.cumulative (a repeated row adds 0.0), so a projection that
+        # lands on a vertex compares equal to that vertex's distance, as shapely's project() does in the simapp.
+        self._dists = np.concatenate([[0.0], np.cumsum(seg)]).tolist()
+        self._dists[-1] = max(self._dists[-1], track.length)
+        # simapp: is_ccw is the forward centre line's orientation (True for an open track), flipped when reversed;
+        # ``track`` is already in the direction of travel, so for a loop that is its own orientation.
+        self.ccw = not track.clockwise if track.closed else not reverse
+
+    def closest(self, s: float) -> list[int]:
+        """``[prev, next]`` waypoint indices around arc length ``s`` (metres along this direction)."""
+        n = len(self._dists)
+        nxt = bisect.bisect_right(self._dists, s)
+        prev = nxt - 1 if nxt > 0 else n - 1
+        return [prev, 0 if nxt == n else nxt]
+
+
+def _foot(track: Track, proj) -> tuple[float, float]:
+    """The centre-line point a projection landed on."""
+    i, t = int(proj.segment[0]), float(proj.t[0])
+    a, b = track.center[i], track.center[i + 1]
+    return float(a[0] + t * (b[0] - a[0])), float(a[1] + t * (b[1] - a[1]))
+
+
+def _nearest_on_border(border: np.ndarray, point: tuple[float, float], hint: int, closed: bool) -> tuple[float, float]:
+    """The point of a border polyline nearest ``point`` (shapely's ``interpolate(project(point))`` in the simapp).
+
+    Searched within a few segments of the centre line's segment (border row i faces centre row i); a border far
+    from its centre-line row (a hairpin's inside) is searched whole.
+    """
+    n_seg = len(border) - 1
+    window = range(hint - 6, hint + 7) if n_seg > 13 else range(n_seg)
+    best, best_d2 = point, math.inf
+    px, py = point
+    for j in window:
+        if closed:
+            j %= n_seg
+        elif not 0 <= j < n_seg:
+            continue
+        ax, ay = border[j]
+        bx, by = border[j + 1]
+        vx, vy = bx - ax, by - ay
+        length2 = vx * vx + vy * vy
+        t = 0.0 if length2 == 0 else min(max(((px - ax) * vx + (py - ay) * vy) / length2, 0.0), 1.0)
+        fx, fy = ax + t * vx, ay + t * vy
+        d2 = (px - fx) ** 2 + (py - fy) ** 2
+        if d2 < best_d2:
+            best, best_d2 = (float(fx), float(fy)), d2
+    return best
+
+
 def _wrap(ds: float, track: Track) -> float:
     """Shortest signed arc-length difference (handles crossing the start line of a loop)."""
     if not track.closed:
         return ds
     half = track.length / 2
     return (ds + half) % track.length - half
-
-
-def _waypoint_list(track: Track) -> list[tuple[float, float]]:
-    return [(float(x), float(y)) for x, y in track.center]

@@ -8,6 +8,7 @@ border inside the loop. A closed loop repeats its first row as its last; an open
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -18,6 +19,7 @@ import numpy as np
 
 MIN_WAYPOINTS = 5
 _CLOSE_TOL_M = 1e-3
+log = logging.getLogger("racer.track")
 
 
 class TrackError(ValueError):
@@ -68,8 +70,8 @@ def _segments_cross(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarr
     return (d1 * d2 < 0) & (d3 * d4 < 0)
 
 
-def _self_crossings(poly: np.ndarray) -> int:
-    """Number of pairs of non-adjacent segments of a polyline that cross each other."""
+def _self_crossings(poly: np.ndarray) -> list[tuple[int, int]]:
+    """Pairs (i, j), i < j, of non-adjacent segments of a polyline that cross each other."""
     a0, a1 = poly[:-1], poly[1:]
     cross = _segments_cross(a0, a1, a0, a1)
     m = len(a0)
@@ -77,7 +79,16 @@ def _self_crossings(poly: np.ndarray) -> int:
     near = np.abs(idx[:, None] - idx[None, :]) <= 1
     near |= (idx[:, None] == 0) & (idx[None, :] == m - 1)
     near |= (idx[:, None] == m - 1) & (idx[None, :] == 0)
-    return int(np.triu(cross & ~near).sum())
+    return [(int(i), int(j)) for i, j in np.argwhere(np.triu(cross & ~near))]
+
+
+def _crossing_point(poly: np.ndarray, i: int, j: int) -> tuple[float, float]:
+    """Where segment i and segment j of a polyline cross."""
+    p, r = poly[i], poly[i + 1] - poly[i]
+    q, s = poly[j], poly[j + 1] - poly[j]
+    t = ((q[0] - p[0]) * s[1] - (q[1] - p[1]) * s[0]) / (r[0] * s[1] - r[1] * s[0])
+    # Rounded, then + 0.0, so a message never shows "-0.000".
+    return round(float(p[0] + t * r[0]), 3) + 0.0, round(float(p[1] + t * r[1]), 3) + 0.0
 
 
 def _signed_area(poly: np.ndarray) -> float:
@@ -104,13 +115,30 @@ def _validate(raw: np.ndarray, source: str) -> np.ndarray:
     if np.any(width < 0.05):
         bad = int(np.argmin(width))
         raise TrackError(f"track file {source!r}: track width {width[bad]:.3f} m at row {bad} is too narrow")
+    # DeepRacer loads a track whose borders cross (the simapp builds shapely geometry and never checks it: the
+    # 2019 reinvent_base.npy has a self-crossing border), so racer loads it too, and says where the crossing is.
     for col, label in ((2, "inner"), (4, "outer")):
-        n = _self_crossings(arr[:, col : col + 2])
-        if n:
-            raise TrackError(f"track file {source!r}: the {label} border crosses itself ({n} crossings)")
+        border = arr[:, col : col + 2]
+        pairs = _self_crossings(border)
+        if pairs:
+            where = ", ".join(
+                f"segments {i}-{i + 1} and {j}-{j + 1} at ({x:.3f}, {y:.3f})"
+                for (i, j), (x, y) in ((pair, _crossing_point(border, *pair)) for pair in pairs[:3])
+            )
+            more = f" and {len(pairs) - 3} more" if len(pairs) > 3 else ""
+            log.warning(
+                "track file %r: the %s border crosses itself (%s%s); loaded as DeepRacer loads it, but the "
+                "on-track test is unreliable near the crossing",
+                source,
+                label,
+                where,
+                more,
+            )
     n = int(_segments_cross(arr[:-1, 2:4], arr[1:, 2:4], arr[:-1, 4:6], arr[1:, 4:6]).sum())
     if n:
-        raise TrackError(f"track file {source!r}: the inner and outer borders cross ({n} crossings)")
+        log.warning(
+            "track file %r: the inner and outer borders cross (%d crossings); loaded as DeepRacer does", source, n
+        )  # noqa: E501
     return arr
 
 
@@ -137,6 +165,9 @@ class Track:
     """(N, 6) float64 as in the file: center, inner, outer."""
     closed: bool
     source: str = ""
+    rows: np.ndarray | None = field(default=None, repr=False)
+    """(M, 6) float64: the file's rows exactly, repeated rows included (the simapp keeps them, so the reward
+    function's ``waypoints`` and ``closest_waypoints`` count them); None = the same as ``waypoints``."""
 
     @classmethod
     def from_array(cls, raw: np.ndarray, name: str = "track", source: str = "<array>") -> Track:
@@ -145,11 +176,17 @@ class Track:
         closed = bool(np.linalg.norm(arr[0, :2] - arr[-1, :2]) < _CLOSE_TOL_M)
         if closed:
             arr[-1] = arr[0]
-        return cls(name=name, waypoints=arr, closed=closed, source=source)
+        rows = np.asarray(raw, dtype=np.float64).copy()
+        return cls(name=name, waypoints=arr, closed=closed, source=source, rows=rows)
 
     def reversed(self) -> Track:
         """The same track driven the other way round (inner stays the border inside the loop)."""
-        return Track(self.name, self.waypoints[::-1].copy(), self.closed, self.source)
+        return Track(self.name, self.waypoints[::-1].copy(), self.closed, self.source, self.file_rows[::-1].copy())
+
+    @property
+    def file_rows(self) -> np.ndarray:
+        """(M, 6): the rows as the file has them (in this direction), repeated rows included."""
+        return self.waypoints if self.rows is None else self.rows
 
     @property
     def center(self) -> np.ndarray:

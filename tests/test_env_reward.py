@@ -5,7 +5,8 @@ import textwrap
 
 import pytest
 
-from sim.env import RacerEnv
+from common.config import EnvConfig
+from sim.env import RacerEnv, preflight_reward
 from sim.reward import RewardFunctionError, example_path
 
 
@@ -62,8 +63,7 @@ def test_raising_reward_function_names_file_and_step(tmp_path):
     )
     env = RacerEnv(track="reinvent_base", reward_fn=str(path), randomization={"random_start": False})
     env.reset(seed=0)
-    env.step(5)
-    env.step(5)
+    env.step(5)  # DeepRacer's steps 2: step 1 is the prepare step
     with pytest.raises(RewardFunctionError, match=r"bad_reward\.py.*step 3.*KeyError"):
         env.step(5)
 
@@ -80,7 +80,7 @@ def test_raising_reward_function_names_file_and_step(tmp_path):
 def test_broken_reward_file_fails_before_the_first_episode(tmp_path, body, match):
     path = write(tmp_path, "r.py", body)
     with pytest.raises(RewardFunctionError, match=f"(?i)r\\.py.*({match})"):
-        RacerEnv(track="reinvent_base", reward_fn=str(path))
+        preflight_reward(EnvConfig(track="reinvent_base", reward_fn=str(path)))
 
 
 def test_missing_reward_file_is_refused():

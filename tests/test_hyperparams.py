@@ -47,13 +47,31 @@ def test_deepracer_file_loads(tmp_path: Path) -> None:
     assert (hp.clip_epsilon, hp.gae_lambda, hp.value_loss_coef, hp.max_grad_norm) == (0.2, 0.95, 0.5, 0.5)
 
 
-def test_defaults() -> None:
+def test_defaults_are_the_simapps() -> None:
+    # deepracer-simapp markov/sagemaker_graph_manager.py, get_updated_hyper_parameters: the value used when the
+    # key is missing (hp_dict.get(key, default)).
     hp = Hyperparameters()
     assert hp.batch_size == 64 and hp.beta_entropy == 0.01 and hp.discount_factor == 0.999
-    assert hp.e_greedy_value == 1.0 and hp.epsilon_steps == 10000 and hp.exploration_type == "categorical"
-    assert hp.loss_type == "huber" and hp.lr == 0.0003 and hp.num_episodes_between_training == 20
-    assert hp.num_epochs == 10 and hp.stack_size == 1
-    assert hp.term_cond_avg_score == 350.0 and hp.term_cond_max_episodes == 1000
+    assert hp.e_greedy_value == 0.05 and hp.epsilon_steps == 10000 and hp.exploration_type == "categorical"
+    assert hp.loss_type == "mean squared error" and hp.lr == 0.0003 and hp.num_episodes_between_training == 20
+    assert hp.num_epochs == 10 and hp.stack_size == 1 and hp.sac_alpha == 0.2
+    assert hp.term_cond_avg_score == 100000 and hp.term_cond_max_episodes == 100000
+
+
+def test_drfc_default_file_is_accepted_and_its_unused_keys_reported(tmp_path: Path) -> None:
+    # deepracer-for-cloud defaults/hyperparameters.json carries sac_alpha beside the PPO keys.
+    data = DEEPRACER_FILE | {"sac_alpha": 0.2, "term_cond_avg_score": 350.0, "e_greedy_value": 0.05}
+    hp = load_hyperparameters(_write(tmp_path, json.dumps(data)))
+    notes = " ".join(hp.ignored())
+    assert "sac_alpha" in notes and "term_cond_avg_score" in notes and "e_greedy_value" in notes
+    assert "lr" not in notes
+
+
+def test_e_greedy_exploration_is_refused_in_one_line(tmp_path: Path) -> None:
+    path = _write(tmp_path, json.dumps({"exploration_type": "E-Greedy"}))
+    with pytest.raises(HyperparametersError, match="exploration_type.*e-greedy.*not supported") as info:
+        load_hyperparameters(path)
+    assert str(path) in str(info.value) and "\n" not in str(info.value)
 
 
 def test_empty_object_is_all_defaults(tmp_path: Path) -> None:

@@ -148,11 +148,12 @@ def test_simtrace_keys():
 
 
 def _info(steps, x, status="in_progress", command=(0.0, 1.0)):
+    """An env ``info`` after ``steps`` env steps (``params["steps"]`` counts DeepRacer's prepare step too)."""
     params = {
         "x": x,
         "y": 0.0,
         "heading": 0.0,
-        "steps": steps,
+        "steps": steps + 1,
         "progress": 10.0 * steps,
         "all_wheels_on_track": True,
         "waypoints": [(0.0, 0.0), (1.0, 0.0), (2.0, 0.0)],

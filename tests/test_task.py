@@ -84,7 +84,7 @@ def test_params_at_known_pose_on_straight(straight):
     first = prepare(straight, 0)
     assert first.status == Status.PREPARE
     assert first.terminated is False
-    assert first.params["steps"] == 0
+    assert first.params["steps"] == 1  # DeepRacer's prepare step is step 1
     assert first.params["progress"] == pytest.approx(100 * FRONT_POINT_M / 10.0)
 
     res = observe(straight, Pose(2.0, 0.1, 0.0), command=(12.5, 0.8), sim_time=0.4)
@@ -103,7 +103,7 @@ def test_params_at_known_pose_on_straight(straight):
     assert p["track_width"] == pytest.approx(1.0)
     assert p["track_length"] == pytest.approx(10.0)
     assert p["progress"] == pytest.approx(21.4)  # front point 2.14 m along a 10 m track, started at waypoint 0
-    assert p["steps"] == 1
+    assert p["steps"] == 2  # the simapp's first rewarded step
     assert p["speed"] == 0.8
     assert p["steering_angle"] == 12.5
     assert p["sim_time"] == 0.4
@@ -129,7 +129,7 @@ def test_params_right_of_center_and_steps_count(straight):
     prepare(straight, 0)
     for k in range(1, 4):
         res = observe(straight, Pose(1.0 + 0.5 * k, -0.2, 0.0))
-        assert res.params["steps"] == k
+        assert res.params["steps"] == k + 1
     assert res.params["is_left_of_center"] is False
     assert res.params["distance_from_center"] == pytest.approx(0.2)
     assert res.params["x"] == pytest.approx(2.64)
@@ -212,10 +212,12 @@ def test_circle_progress_keeps_increasing_across_the_start_line(circle):
     assert res.status == Status.IN_PROGRESS
 
 
-def test_circle_last_waypoint_wraps_to_zero_in_closest_waypoints(circle):
+def test_circle_last_segment_is_the_closing_row_in_closest_waypoints(circle):
+    # simapp find_prev_next: waypoints keep the loop's closing row (60 = 0), so the last segment is [59, 60].
     prepare(circle, 58)
     res = observe(circle, circle_pose(59))  # front point on the chord 59→60 (= 0)
-    assert res.params["closest_waypoints"] == [59, 0]
+    assert res.params["closest_waypoints"] == [59, 60]
+    assert len(res.params["waypoints"]) == 61
 
 
 def test_circle_full_lap_completes(circle):
@@ -374,7 +376,7 @@ def test_env_reset_params_match_deepracer_first_row(base_env):
     assert info["episode_status"] == "prepare"
     params = info["params"]
     assert set(params) == set(PARAM_KEYS)
-    assert params["steps"] == 0
+    assert params["steps"] == 1 and info["steps"] == 0
     assert params["track_length"] == pytest.approx(17.709, abs=1e-3)
     assert params["progress"] == pytest.approx(100 * 0.14 / 17.709, abs=1e-3)
     assert params["progress"] == pytest.approx(0.7905, abs=1e-3)
@@ -404,7 +406,7 @@ def test_env_time_limit_truncates_with_time_up():
         assert terminated is False
         assert truncated is (k == 5)
     assert info["episode_status"] == Status.TIME_UP
-    assert info["params"]["steps"] == 5
+    assert info["steps"] == 5 and info["params"]["steps"] == 6
 
 
 def test_gymnasium_make_time_limit_truncates_with_time_up():
@@ -482,7 +484,7 @@ def test_gymnasium_make_every_bundled_track(name):
         obs, reward, _, _, info = env.step(env.action_space.sample())
         assert env.observation_space.contains(obs)
         assert np.isfinite(reward)
-    assert info["params"]["steps"] == 3
+    assert info["params"]["steps"] == 4
     env.close()
 
 
@@ -496,5 +498,5 @@ def test_gymnasium_make_with_npy_path(tmp_path: Path):
     assert info["params"]["progress"] == pytest.approx(100 * FRONT_POINT_M / LAP)
     for _ in range(3):
         obs, _, _, _, info = env.step(env.action_space.sample())
-    assert info["params"]["steps"] == 3
+    assert info["params"]["steps"] == 4
     env.close()

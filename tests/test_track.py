@@ -174,22 +174,31 @@ def test_too_few_points_is_a_track_error(tmp_path):
     assert_track_error(save(tmp_path, straight_array(3)), "3 distinct waypoints")
 
 
-def test_self_crossing_border_is_a_track_error(tmp_path):
+def test_self_crossing_border_loads_with_a_warning_naming_the_crossing(tmp_path, caplog):
+    # DeepRacer loads such a file (the simapp never validates its shapely geometry; the 2019 reinvent_base.npy has a
+    # self-crossing border), so racer loads it and says where the border crosses itself.
     arr = circle_array()
     theta = 2 * np.pi * np.arange(CIRCLE_POINTS + 1) / CIRCLE_POINTS
     # Figure-eight inner border (crosses itself at the origin), well away from the outer border.
     arr[:, 2] = 1.2 * np.sin(theta)
     arr[:, 3] = 0.8 * np.sin(2 * theta)
     arr[-1] = arr[0]
-    assert_track_error(save(tmp_path, arr), "inner border crosses itself")
+    with caplog.at_level("WARNING", logger="racer.track"):
+        track = load_track(save(tmp_path, arr))
+    assert track.closed
+    message = " ".join(r.getMessage() for r in caplog.records)
+    assert "inner border crosses itself" in message
+    assert "segments 30-31 and 59-60 at (0.000, 0.000)" in message, message
 
 
-def test_borders_crossing_each_other_is_a_track_error(tmp_path):
+def test_borders_crossing_each_other_load_with_a_warning(tmp_path, caplog):
     arr = straight_array(11)  # waypoints 1 m apart
     # From waypoint 5 on, the borders swap sides: segment 4-5 of each border crosses the other's,
     # while the width at every waypoint stays 1 m and neither border crosses itself.
     arr[5:, 3], arr[5:, 5] = -0.5, 0.5
-    assert_track_error(save(tmp_path, arr), "inner and outer borders cross")
+    with caplog.at_level("WARNING", logger="racer.track"):
+        load_track(save(tmp_path, arr))
+    assert "inner and outer borders cross" in caplog.text
 
 
 class _Unpickled:

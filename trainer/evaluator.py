@@ -130,7 +130,7 @@ def run_trial(
         done = term or trunc
     p, status = info["params"], info["episode_status"]
     lap = p["sim_time"] if status == "lap_complete" else None
-    return Trial(env.track.name, reverse, start, p["progress"], status, p["steps"], lap, trajectory)
+    return Trial(env.track.name, reverse, start, p["progress"], status, info["steps"], lap, trajectory)
 
 
 @dataclass
@@ -162,7 +162,14 @@ class _Driving:
         p, status = self.info["params"], self.info["episode_status"]
         lap = p["sim_time"] if status == "lap_complete" else None
         return Trial(
-            self.env.track.name, self.reverse, self.start, p["progress"], status, p["steps"], lap, self.trajectory
+            self.env.track.name,
+            self.reverse,
+            self.start,
+            p["progress"],
+            status,
+            self.info["steps"],
+            lap,
+            self.trajectory,
         )
 
 

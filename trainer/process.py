@@ -42,6 +42,12 @@ from sim.env import RacerEnv
 from trainer.ppo import PPOBatch, compute_gae, update
 
 log = logging.getLogger("racer.trainer")
+
+
+class PretrainedError(ValueError):
+    """A pretrained checkpoint whose network does not fit this run's."""
+
+
 METRICS_FILE = "metrics.jsonl"
 """Per-iteration figures of a run, one JSON object a line, in the run's folder of the store."""
 
@@ -123,6 +129,8 @@ class Trainer:
         if self.opts.resume:
             self.store_outage.call("read the newest checkpoint", self._resume)
         else:
+            if self.run.pretrained:
+                self.store_outage.call("read the pretrained checkpoint", self._load_pretrained)
             self._checkpoint()
         # A predecessor killed mid-update leaves its "training" mark, which would hold the workers back.
         self.redis_outage.call("publish the policy", lambda: (self.redis.delete(self.keys.training), self._publish()))
@@ -186,6 +194,26 @@ class Trainer:
             lines = self.runs.read_file(self.run.run_id, METRICS_FILE).decode().splitlines()
             self.metrics = [json.loads(line) for line in lines if line.strip()]
         log.info("resumed run %s at version %d (%d env steps)", self.run.run_id, self.version, self.stats.env_steps)
+
+    def _load_pretrained(self) -> None:
+        """Version 0 takes another run's weights (``run.pretrained``); a shape mismatch is one clear error."""
+        source, _, which = str(self.run.pretrained).partition(":")
+        payload, meta = self.runs.load_checkpoint(source, which)
+        model_sd, _ = checkpoint_from_bytes(payload)
+        ours = self.model.state_dict()
+        wrong = [
+            f"{k} {tuple(v.shape)} vs {tuple(ours[k].shape)}"
+            for k, v in model_sd.items()
+            if k in ours and v.shape != ours[k].shape
+        ]
+        missing = sorted(set(ours) ^ set(model_sd))
+        if wrong or missing:
+            detail = "; ".join(wrong[:2]) or f"layers differ: {', '.join(missing[:3])}"
+            raise PretrainedError(
+                f"pretrained {self.run.pretrained}: the network's shapes differ from this run's ({detail})"
+            )
+        self.model.load_state_dict(model_sd)
+        log.info("run %s starts from run %s version %s", self.run.run_id, source, meta.get("version"))
 
     def _checkpoint(self) -> dict:
         """Save the current version; through a store outage, retry the same bytes and metadata until it is whole."""
@@ -356,10 +384,9 @@ class Trainer:
         self.tb.flush()
 
     def _done(self) -> bool:
-        hp, recent = self.hp, self.stats.recent
-        if self.stats.episodes >= hp.term_cond_max_episodes:
-            return True
-        return len(recent) >= 20 and statistics.fmean(e.reward for e in recent[-20:]) >= hp.term_cond_avg_score
+        # As the simapp's training_worker.py: term_cond_max_episodes bounds the policy updates (its loop counts one
+        # per train() call); term_cond_avg_score stops nothing there, so it stops nothing here.
+        return self.stats.iteration >= self.hp.term_cond_max_episodes
 
     def _steps_per_s(self) -> float:
         elapsed = time.monotonic() - self.stats.started

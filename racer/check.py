@@ -1,0 +1,97 @@
+"""``racer check``: validate a user's DeepRacer files exactly as ``racer train`` would, and say what racer does with
+each, one line per file; and the merging of ``--from-drfc`` with explicit options that ``racer train`` shares."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from racer.drfc import DrfcImport, import_drfc
+
+
+@dataclass
+class UserFiles:
+    """The user's inputs to a run after ``--from-drfc`` is merged in (explicit options win)."""
+
+    track: str = "reinvent_base"
+    reward_fn: str | None = None
+    action_space: str | None = None
+    hyperparams: str | None = None
+    workers: int | None = None
+    run_id: str | None = None
+    eval_episodes: int | None = None
+    pretrained: str | None = None
+    randomization: dict = field(default_factory=dict)
+    drfc: DrfcImport | None = None
+
+
+def merge_inputs(
+    track: str | None,
+    reward_fn: Path | None,
+    action_space: Path | None,
+    hyperparams: Path | None,
+    from_drfc: Path | None,
+) -> UserFiles:
+    """The run's inputs: explicit options first, then what a DRfC folder says, then racer's defaults."""
+    drfc = import_drfc(from_drfc) if from_drfc else None
+
+    def pick(explicit: object, imported: object) -> str | None:
+        chosen = explicit if explicit is not None else imported
+        return None if chosen is None else str(chosen)
+
+    return UserFiles(
+        track=pick(track, drfc and drfc.track) or "reinvent_base",
+        reward_fn=pick(reward_fn, drfc and drfc.reward_fn),
+        action_space=pick(action_space, drfc and drfc.action_space),
+        hyperparams=pick(hyperparams, drfc and drfc.hyperparams),
+        workers=drfc.workers if drfc else None,
+        run_id=drfc.run_id if drfc else None,
+        eval_episodes=drfc.eval_episodes if drfc else None,
+        pretrained=drfc.pretrained if drfc else None,
+        randomization=dict(drfc.randomization) if drfc else {},
+        drfc=drfc,
+    )
+
+
+def drfc_lines(drfc: DrfcImport | None) -> list[str]:
+    """What racer does with a DRfC folder's variables: the mapped ones, then one line listing the rest."""
+    if drfc is None or not drfc.env_files:
+        return []
+    files = ", ".join(str(p) for p in drfc.env_files)
+    used = "; ".join(f"{k} -> {v}" for k, v in sorted(drfc.mapped.items())) or "none"
+    lines = [f"{files}: used: {used}"]
+    if drfc.unmapped:
+        lines.append(f"{files}: no racer meaning, not used: {', '.join(sorted(drfc.unmapped))}")
+    return lines
+
+
+def check_files(inputs: UserFiles) -> list[str]:
+    """Validate as ``racer train`` does (raising its one-line errors) and describe each file in one line."""
+    from common.action_space import default_action_space, load_action_space
+    from common.hyperparams import Hyperparameters, load_hyperparameters
+    from racer.runconfig import build_run
+
+    notes: list[str] = []
+    run, _ = build_run(
+        "racer-check",
+        inputs.track,
+        inputs.reward_fn,
+        inputs.action_space,
+        inputs.hyperparams,
+        notes=notes,
+        randomization_update=inputs.randomization,
+    )
+    actions = load_action_space(inputs.action_space) if inputs.action_space else default_action_space()
+    hp = load_hyperparameters(inputs.hyperparams) if inputs.hyperparams else Hyperparameters()
+    kind = f"{actions.n} discrete actions" if actions.discrete else "a continuous action space"
+    lines = [
+        f"{inputs.reward_fn or 'reward function (racer default)'}: ran on {run.env.track} in a throwaway env: ok",
+        f"{inputs.action_space or 'model_metadata.json (racer default)'}: {kind}, sensor {', '.join(actions.sensor)}, "
+        f"{actions.training_algorithm}, {actions.neural_network} (racer's {run.policy.network} CNN)",
+        f"{inputs.hyperparams or 'hyperparameters.json (DeepRacer defaults)'}: batch {hp.batch_size}, lr {hp.lr:g}, "
+        f"{hp.num_epochs} epochs every {hp.num_episodes_between_training} episodes, {hp.loss_type} value loss, "
+        f"stops after {hp.term_cond_max_episodes} policy updates",
+    ]
+    lines += notes
+    lines += drfc_lines(inputs.drfc)
+    return lines

@@ -1,0 +1,236 @@
+"""Coming from DeepRacer-for-Cloud (DRfC): read a DRfC ``custom_files/`` folder and its ``run.env``.
+
+A DRfC user keeps ``reward_function.py``, ``model_metadata.json`` and ``hyperparameters.json`` in
+``custom_files/`` and the run's settings as ``DR_*`` variables in ``run.env`` (and ``system.env``).
+:func:`import_drfc` finds those files and maps every variable that has a racer meaning; the others are
+returned in :attr:`DrfcImport.unmapped`, for the one line ``racer train`` and ``racer check`` print, so that
+nothing is dropped silently. Variables whose value racer cannot honour (another race type, a track racer
+does not ship) are a one-line :class:`DrfcError` naming the file, the variable and the value.
+
+The variables' meanings follow DRfC's ``defaults/template-run.env`` and the simapp's use of them
+(``markov/agent_ctrl/rollout_agent_ctrl.py``: ``change_start`` advances the start by
+``round_robin_advance_dist`` of a lap each episode; ``alternate_driving_direction`` flips the direction
+each episode).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sim.track import bundled_track_names
+
+CUSTOM_FILES = ("reward_function.py", "model_metadata.json", "hyperparameters.json")
+_LINE = re.compile(r"^\s*(?:export\s+)?([A-Za-z_][A-Za-z0-9_]*)\s*=\s*(.*?)\s*$")
+
+
+class DrfcError(ValueError):
+    """A DRfC folder or variable racer cannot use; the one-line message names the file, the variable, the value."""
+
+
+@dataclass
+class DrfcImport:
+    """What a DRfC folder asks for, in racer's terms (None = not set there)."""
+
+    folder: Path
+    reward_fn: Path | None = None
+    action_space: Path | None = None
+    hyperparams: Path | None = None
+    env_files: list[Path] = field(default_factory=list)
+    track: str | None = None
+    workers: int | None = None
+    run_id: str | None = None
+    eval_episodes: int | None = None
+    randomization: dict[str, Any] = field(default_factory=dict)
+    """RandomizationConfig fields to set."""
+    pretrained: str | None = None
+    """``RUN:CHECKPOINT`` to start from (DR_LOCAL_S3_PRETRAINED)."""
+    mapped: dict[str, str] = field(default_factory=dict)
+    """Each variable used, with what racer does with it."""
+    unmapped: list[str] = field(default_factory=list)
+    """DR_* variables set in the files that have no racer meaning (yet)."""
+
+
+def read_env_file(path: Path) -> dict[str, str]:
+    """``KEY=value`` lines of a DRfC .env file (comments, blank lines and quotes as a shell would read them)."""
+    values: dict[str, str] = {}
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DrfcError(f"DRfC file {str(path)!r} cannot be read: {exc}") from None
+    for number, raw in enumerate(text.splitlines(), 1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        m = _LINE.match(line)
+        if not m:
+            raise DrfcError(f"DRfC file {str(path)!r} line {number}: expected KEY=value, got {line[:80]!r}")
+        key, value = m.group(1), m.group(2)
+        if value[:1] in "\"'" and value[-1:] == value[:1] and len(value) >= 2:
+            value = value[1:-1]
+        else:
+            value = value.split(" #", 1)[0].strip()
+        values[key] = value
+    return values
+
+
+def _find(folder: Path, name: str) -> Path | None:
+    for candidate in (folder / name, folder / "custom_files" / name, folder.parent / name):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def import_drfc(folder: str | Path) -> DrfcImport:
+    """Read a DRfC folder (its ``custom_files/`` and ``run.env``, optionally ``system.env``); see the module doc."""
+    root = Path(folder)
+    if not root.is_dir():
+        raise DrfcError(f"DRfC folder {str(root)!r} does not exist")
+    out = DrfcImport(folder=root)
+    out.reward_fn = _find(root, "reward_function.py")
+    out.action_space = _find(root, "model_metadata.json")
+    out.hyperparams = _find(root, "hyperparameters.json")
+    env: dict[str, tuple[str, Path]] = {}
+    for name in ("system.env", "run.env"):  # run.env last: its values win, as in DRfC's scripts
+        path = _find(root, name)
+        if path is not None:
+            out.env_files.append(path)
+            env.update({k: (v, path) for k, v in read_env_file(path).items()})
+    if not (out.reward_fn or out.action_space or out.hyperparams or out.env_files):
+        raise DrfcError(
+            f"DRfC folder {str(root)!r} holds none of {', '.join(CUSTOM_FILES)}, run.env (also looked in custom_files/)"
+        )
+    for key, (value, path) in env.items():
+        handler = _HANDLERS.get(key)
+        if handler is None:
+            if key.startswith("DR_"):
+                out.unmapped.append(key)
+            continue
+        meaning = handler(out, value, _Where(path, key, value))
+        if meaning:
+            out.mapped[key] = meaning
+    _finish_start_positions(out, env)
+    return out
+
+
+@dataclass(frozen=True)
+class _Where:
+    path: Path
+    key: str
+    value: str
+
+    def error(self, why: str) -> DrfcError:
+        return DrfcError(f"DRfC file {str(self.path)!r}: {self.key}={self.value!r}: {why}")
+
+
+def _bool(where: _Where) -> bool:
+    v = where.value.strip().lower()
+    if v in ("true", "1", "yes"):
+        return True
+    if v in ("false", "0", "no", ""):
+        return False
+    raise where.error("expected True or False")
+
+
+def _number(where: _Where, kind: type, low: float, high: float) -> Any:
+    try:
+        value = kind(where.value)
+    except ValueError:
+        raise where.error(f"expected a{'n integer' if kind is int else ' number'}") from None
+    if not low <= value <= high:
+        raise where.error(f"expected a value in [{low:g}, {high:g}]")
+    return value
+
+
+def _world(out: DrfcImport, value: str, where: _Where) -> str:
+    names = bundled_track_names()
+    if value not in names:
+        raise where.error(f"racer does not ship this track; use one of {', '.join(names)}")
+    out.track = value
+    return f"--track {value}"
+
+
+def _race_type(out: DrfcImport, value: str, where: _Where) -> str:
+    if value.strip().upper() != "TIME_TRIAL":
+        raise where.error("racer runs TIME_TRIAL only (object avoidance and head-to-bot are not built yet)")
+    return "time trial"
+
+
+def _workers(out: DrfcImport, value: str, where: _Where) -> str:
+    out.workers = _number(where, int, 1, 64)
+    return f"--workers {out.workers}"
+
+
+def _model_prefix(out: DrfcImport, value: str, where: _Where) -> str:
+    if not re.fullmatch(r"[A-Za-z0-9._-]+", value):
+        raise where.error("a racer run id takes letters, digits, '.', '_' and '-'")
+    out.run_id = value
+    return f"--run-id {value}"
+
+
+def _eval_trials(out: DrfcImport, value: str, where: _Where) -> str:
+    out.eval_episodes = _number(where, int, 1, 100)
+    return f"--eval-episodes {out.eval_episodes} (starts per direction of racer's evaluator)"
+
+
+def _alternate(out: DrfcImport, value: str, where: _Where) -> str:
+    out.randomization["alternate_direction"] = _bool(where)
+    return f"alternate_direction {out.randomization['alternate_direction']}"
+
+
+def _noted(out: DrfcImport, value: str, where: _Where) -> str:
+    _bool(where) if where.key == "DR_TRAIN_CHANGE_START_POSITION" else _number(where, float, 0.0, 1.0)
+    return "start positions (below)"
+
+
+def _pretrained(out: DrfcImport, value: str, where: _Where) -> str:
+    return "starts from another run (with DR_LOCAL_S3_PRETRAINED_PREFIX)" if _bool(where) else ""
+
+
+def _unused_when_empty(out: DrfcImport, value: str, where: _Where) -> str:
+    return "read with DR_LOCAL_S3_PRETRAINED"
+
+
+_HANDLERS = {
+    "DR_WORLD_NAME": _world,
+    "DR_RACE_TYPE": _race_type,
+    "DR_WORKERS": _workers,
+    "DR_LOCAL_S3_MODEL_PREFIX": _model_prefix,
+    "DR_EVAL_NUMBER_OF_TRIALS": _eval_trials,
+    "DR_TRAIN_ALTERNATE_DRIVING_DIRECTION": _alternate,
+    "DR_TRAIN_CHANGE_START_POSITION": _noted,
+    "DR_TRAIN_ROUND_ROBIN_ADVANCE_DIST": _noted,
+    "DR_LOCAL_S3_PRETRAINED": _pretrained,
+    "DR_LOCAL_S3_PRETRAINED_PREFIX": _unused_when_empty,
+    "DR_LOCAL_S3_PRETRAINED_CHECKPOINT": _unused_when_empty,
+}
+
+
+def _finish_start_positions(out: DrfcImport, env: dict[str, tuple[str, Path]]) -> None:
+    """Start positions and the pretrained model, which each take two or three variables together."""
+    change = env.get("DR_TRAIN_CHANGE_START_POSITION")
+    if change is not None:
+        advance = env.get("DR_TRAIN_ROUND_ROBIN_ADVANCE_DIST", ("0.05", change[1]))
+        step = _number(_Where(advance[1], "DR_TRAIN_ROUND_ROBIN_ADVANCE_DIST", advance[0]), float, 0.0, 1.0)
+        if _bool(_Where(change[1], "DR_TRAIN_CHANGE_START_POSITION", change[0])) and step > 0:
+            # The simapp advances the start by `step` of a lap each episode; racer's round robin splits the lap
+            # into equal parts by waypoint.
+            out.randomization.update(random_start=False, round_robin_divisions=max(1, round(1 / step)))
+        else:
+            out.randomization.update(random_start=False, round_robin_divisions=1)  # always the first waypoint
+        out.mapped["DR_TRAIN_CHANGE_START_POSITION"] = (
+            f"random_start False, round_robin_divisions {out.randomization['round_robin_divisions']}"
+        )
+    pre = env.get("DR_LOCAL_S3_PRETRAINED")
+    if pre is not None and _bool(_Where(pre[1], "DR_LOCAL_S3_PRETRAINED", pre[0])):
+        prefix = env.get("DR_LOCAL_S3_PRETRAINED_PREFIX")
+        if prefix is None or not prefix[0]:
+            raise _Where(pre[1], "DR_LOCAL_S3_PRETRAINED", pre[0]).error("needs DR_LOCAL_S3_PRETRAINED_PREFIX")
+        checkpoint = env.get("DR_LOCAL_S3_PRETRAINED_CHECKPOINT", ("last", pre[1]))[0].strip().lower() or "last"
+        if checkpoint not in ("last", "best") and not checkpoint.isdigit():
+            where = _Where(pre[1], "DR_LOCAL_S3_PRETRAINED_CHECKPOINT", checkpoint)
+            raise where.error("expected last, best or a checkpoint number")
+        out.pretrained = f"{prefix[0]}:{'latest' if checkpoint == 'last' else checkpoint}"
+        out.mapped["DR_LOCAL_S3_PRETRAINED"] = f"--pretrained {out.pretrained}"

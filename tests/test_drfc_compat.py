@@ -1,0 +1,282 @@
+"""DeepRacer users' files behave as in DeepRacer: params computed the simapp's way at the poses where a platform can
+differ, reward functions that cache state, DRfC folders, racer check, and starting from another run.
+
+Expected values are computed as the simapp computes them: with shapely, the simapp's own geometry library
+(aws-deepracer-community/deepracer-simapp, markov/track_geom/track_data.py: ``TrackLine``, ``get_nearest_points``;
+markov/track_geom/utils.py ``find_prev_next``; markov/agent_ctrl/utils.py ``set_reward_and_metrics``).
+"""
+
+from __future__ import annotations
+
+import bisect
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from shapely.geometry import LinearRing, Point
+
+from common.config import EnvConfig, PolicyConfig, RunConfig
+from model_store import LocalStore, RunStore
+from racer.drfc import DrfcError, import_drfc
+from racer.runconfig import PretrainedError, build_run, check_pretrained
+from sim.env import RacerEnv, preflight_reward
+from sim.physics import FRONT_POINT_M, Pose
+from sim.reward import RewardFunctionError
+from sim.task import RacingTask
+from sim.track import load_track
+
+PATTERNS = Path(__file__).parent / "data" / "reward_patterns"
+TRACKS = ("reinvent_base", "Spain_track", "2022_summit_speedway")  # Spain_track: clockwise, negative coordinates
+
+
+# --- the simapp's computation, with shapely ---------------------------------------------------------------------
+
+
+def simapp_params(rows: np.ndarray, x: float, y: float) -> dict:
+    """closest_waypoints, track_width, distance_from_center and is_left_of_center as the simapp computes them."""
+    center, inner, outer = LinearRing(rows[:, 0:2]), LinearRing(rows[:, 2:4]), LinearRing(rows[:, 4:6])
+    ndists = [center.project(Point(p), normalized=True) for p in center.coords[:-1]] + [1.0]
+    point = Point(x, y)
+    ndist = center.project(point, normalized=True)
+    nxt = bisect.bisect_right(ndists, ndist)
+    prev = nxt - 1 if nxt > 0 else len(ndists) - 1
+    nxt = 0 if nxt == len(ndists) else nxt
+    near_ctr = center.interpolate(ndist, normalized=True)
+    near_in = inner.interpolate(inner.project(near_ctr))
+    near_out = outer.interpolate(outer.project(near_ctr))
+    return {
+        "closest_waypoints": [prev, nxt],
+        "track_width": near_in.distance(near_out),
+        "distance_from_center": near_ctr.distance(point),
+        "is_left_of_center": (point.distance(near_in) < point.distance(near_out)) ^ (not center.is_ccw),
+    }
+
+
+def observe_front_at(task: RacingTask, track_name: str, x: float, y: float, yaw: float, command=(0.0, 1.0)) -> dict:
+    """The task's params with the car's front point (DeepRacer's x, y) at (x, y), heading yaw."""
+    base = Pose(x - FRONT_POINT_M * math.cos(yaw), y - FRONT_POINT_M * math.sin(yaw), yaw)
+    wheels = np.array([[base.x, base.y]] * 4)
+    return task.observe(base, wheels, True, 0.1, command).params
+
+
+def wedge_point(rows: np.ndarray, i: int, offset: float = 0.05) -> tuple[float, float]:
+    """A point in the wedge between the normals of the two segments at waypoint i (on the outer side of the bend),
+    where every point projects exactly onto waypoint i: the simapp then says [i, i + 1]."""
+    p, a, b = rows[i, :2], rows[i - 1, :2], rows[i + 1, :2]
+    u, v = (p - a) / np.linalg.norm(p - a), (b - p) / np.linalg.norm(b - p)
+    turn = u[0] * v[1] - u[1] * v[0]
+    bisector = (u - v) / np.linalg.norm(u - v) * np.sign(turn)  # away from the inside of the bend
+    q = p + offset * bisector
+    return float(q[0]), float(q[1])
+
+
+@pytest.mark.parametrize("name", ["reinvent_base", "Spain_track"])
+def test_closest_waypoints_at_a_vertex_are_i_and_i_plus_1(name: str) -> None:
+    track = load_track(name)
+    rows = track.file_rows
+    task = RacingTask(track)
+    checked = 0
+    for i in range(5, len(rows) - 5, 7):
+        a, b = rows[i, :2] - rows[i - 1, :2], rows[i + 1, :2] - rows[i, :2]
+        if abs(a[0] * b[1] - a[1] * b[0]) / (np.linalg.norm(a) * np.linalg.norm(b)) < 0.02:
+            continue  # too straight for a wedge of any size
+        x, y = wedge_point(rows, i)
+        expected = simapp_params(rows, x, y)
+        if expected["closest_waypoints"] != [i, i + 1]:
+            continue  # the point fell just off the vertex (a neighbouring segment is nearer)
+        task.begin(max(i - 2, 0), False)
+        got = observe_front_at(task, name, x, y, 0.0)
+        assert got["closest_waypoints"] == [i, i + 1], (i, got["closest_waypoints"])
+        checked += 1
+    assert checked >= 3
+
+
+def test_closest_waypoints_on_the_last_segment_are_n_minus_2_and_n_minus_1() -> None:
+    track = load_track("reinvent_base")
+    rows = track.file_rows
+    n = len(rows)
+    mid = (rows[n - 2, :2] + rows[n - 1, :2]) / 2
+    task = RacingTask(track)
+    task.begin(n - 4, False)
+    got = observe_front_at(task, "reinvent_base", float(mid[0]), float(mid[1]), 0.0)
+    assert got["closest_waypoints"] == simapp_params(rows, *mid)["closest_waypoints"] == [n - 2, n - 1]
+    assert len(got["waypoints"]) == n  # the closing row is kept, as in the simapp
+
+
+@pytest.mark.parametrize("name", ["reinvent_base", "Spain_track", "2022_summit_speedway"])
+def test_params_match_the_simapp_at_random_poses(name: str) -> None:
+    track = load_track(name)
+    rows = track.file_rows
+    task = RacingTask(track)
+    rng = np.random.default_rng(7)
+    for _ in range(60):
+        s = rng.uniform(0, track.length)
+        (cx, cy), heading = track.point_at(s)
+        offset = rng.uniform(-0.6, 0.6) * track.width
+        x, y = cx - offset * math.sin(heading), cy + offset * math.cos(heading)
+        seg = int(np.searchsorted(track.cumulative, s, side="right") - 1)
+        task.begin(max(seg - 1, 0), False)
+        got = observe_front_at(task, name, x, y, heading)
+        want = simapp_params(rows, x, y)
+        assert got["closest_waypoints"] == want["closest_waypoints"]
+        assert got["track_width"] == pytest.approx(want["track_width"], abs=1e-6)
+        assert got["distance_from_center"] == pytest.approx(want["distance_from_center"], abs=1e-6)
+        assert got["is_left_of_center"] == want["is_left_of_center"]
+
+
+def test_speed_and_steering_are_the_actions_values_not_the_cars_limits(tmp_path: Path) -> None:
+    # simapp set_reward_and_metrics: params speed = float(json_actions["speed"]), never clipped to 4 m/s.
+    meta = {"action_space": [{"steering_angle": 0.0, "speed": 12.0}, {"steering_angle": 35.0, "speed": 4.89}]}
+    path = tmp_path / "model_metadata.json"
+    path.write_text(json.dumps(meta))
+    env = RacerEnv(track="reinvent_base", action_space=str(path))
+    env.reset(seed=0, options={"start_index": 0})
+    _, _, _, _, info = env.step(0)
+    assert info["params"]["speed"] == 12.0 and info["command"][1] == 4.0
+    _, _, _, _, info = env.step(1)
+    assert (info["params"]["steering_angle"], info["params"]["speed"]) == (35.0, 4.89)
+    assert info["command"][0] == 30.0
+
+
+# --- reward functions that keep state, run unchanged ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("pattern", sorted(p.name for p in PATTERNS.glob("*.py")))
+@pytest.mark.parametrize("track", TRACKS)
+def test_reward_patterns_run_300_steps_both_directions_after_the_check(pattern: str, track: str) -> None:
+    config = EnvConfig(track=track, reward_fn=str(PATTERNS / pattern), randomization={"alternate_direction": True})
+    preflight_reward(config)  # must neither fail nor leave state behind for training
+    env = RacerEnv(config=config)
+    env.reset(seed=1)
+    directions, rng = set(), np.random.default_rng(0)
+    for _ in range(300):
+        _, reward, term, trunc, info = env.step(int(rng.integers(env.actions.n)))
+        assert math.isfinite(reward)
+        directions.add(info["params"]["is_reversed"])
+        if term or trunc:
+            env.reset()
+    assert directions == {False, True}
+
+
+def test_a_failing_reward_fails_in_one_line_naming_file_and_line(tmp_path: Path) -> None:
+    path = tmp_path / "reward_function.py"
+    path.write_text("def reward_function(params):\n    wp = params['waypoints']\n    return wp[len(wp)][0]\n")
+    with pytest.raises(RewardFunctionError) as info:
+        preflight_reward(EnvConfig(reward_fn=str(path)))
+    message = str(info.value)
+    assert "reward_function.py" in message and "line 3" in message and "IndexError" in message
+    assert "step 2" in message and "\n" not in message
+
+
+# --- DRfC folders and racer check --------------------------------------------------------------------------------
+
+
+def drfc_folder(tmp_path: Path, run_env: str) -> Path:
+    custom = tmp_path / "custom_files"
+    custom.mkdir(parents=True)
+    (custom / "reward_function.py").write_text((PATTERNS / "class_instance_once.py").read_text())
+    (custom / "hyperparameters.json").write_text(json.dumps({"batch_size": 64, "lr": 0.0003, "sac_alpha": 0.2}))
+    (tmp_path / "run.env").write_text(run_env)
+    return tmp_path
+
+
+def test_drfc_run_env_is_mapped_and_the_rest_listed(tmp_path: Path) -> None:
+    folder = drfc_folder(
+        tmp_path,
+        "# DRfC run.env\nDR_WORLD_NAME=Spain_track\nDR_RACE_TYPE=TIME_TRIAL\nDR_CAR_NAME=FastCar\n"
+        "DR_TRAIN_CHANGE_START_POSITION=True\nDR_TRAIN_ROUND_ROBIN_ADVANCE_DIST=0.1\n"
+        "DR_TRAIN_ALTERNATE_DRIVING_DIRECTION=True\nDR_EVAL_NUMBER_OF_TRIALS=5\nDR_WORKERS=3\n"
+        'DR_LOCAL_S3_MODEL_PREFIX="my-model"\nDR_LOCAL_S3_PRETRAINED=True\n'
+        "DR_LOCAL_S3_PRETRAINED_PREFIX=base-model\nDR_LOCAL_S3_PRETRAINED_CHECKPOINT=best\n",
+    )
+    got = import_drfc(folder)
+    assert got.track == "Spain_track" and got.workers == 3 and got.run_id == "my-model" and got.eval_episodes == 5
+    assert got.randomization == {"alternate_direction": True, "random_start": False, "round_robin_divisions": 10}
+    assert got.pretrained == "base-model:best"
+    assert got.unmapped == ["DR_CAR_NAME"]
+    assert got.reward_fn == folder / "custom_files" / "reward_function.py"
+
+
+@pytest.mark.parametrize(
+    ("line", "fragment"),
+    [
+        ("DR_WORLD_NAME=Nowhere_track", "DR_WORLD_NAME='Nowhere_track': racer does not ship this track"),
+        ("DR_RACE_TYPE=OBJECT_AVOIDANCE", "DR_RACE_TYPE='OBJECT_AVOIDANCE': racer runs TIME_TRIAL only"),
+        ("DR_TRAIN_ALTERNATE_DRIVING_DIRECTION=sometimes", "expected True or False"),
+        ("DR_WORKERS=two", "DR_WORKERS='two': expected an integer"),
+    ],
+)
+def test_drfc_values_racer_cannot_honour_are_one_line_errors(tmp_path: Path, line: str, fragment: str) -> None:
+    folder = drfc_folder(tmp_path, line + "\n")
+    with pytest.raises(DrfcError) as info:
+        import_drfc(folder)
+    assert fragment in str(info.value) and "run.env" in str(info.value) and "\n" not in str(info.value)
+
+
+def racer(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "racer", *args], capture_output=True, text=True, timeout=120)
+
+
+def test_racer_check_says_what_racer_does_with_each_file(tmp_path: Path) -> None:
+    folder = drfc_folder(tmp_path, "DR_WORLD_NAME=Spain_track\nDR_CAR_NAME=FastCar\n")
+    done = racer("check", "--from-drfc", str(folder))
+    assert done.returncode == 0, done.stderr
+    out = done.stdout
+    assert "reward_function.py: ran on Spain_track" in out
+    assert "sac_alpha (not used by clipped PPO)" in out
+    assert "no racer meaning, not used: DR_CAR_NAME" in out
+    assert "ok: racer train would accept these files" in out
+
+
+@pytest.mark.parametrize(
+    ("metadata", "fragment"),
+    [
+        ({"training_algorithm": "sac"}, 'training_algorithm = "sac" is not supported'),
+        ({"sensor": ["STEREO_CAMERAS"]}, 'sensor = ["STEREO_CAMERAS"] is not supported'),
+        ({"sensor": ["LIDAR"]}, 'sensor = ["LIDAR"] is not supported'),
+        ({"sensor": ["SECTOR_LIDAR"]}, 'sensor = ["SECTOR_LIDAR"] is not supported'),
+        ({"sensor": ["FRONT_FACING_CAMERA", "LIDAR"]}, 'sensor = ["FRONT_FACING_CAMERA", "LIDAR"] is not'),
+        ({"neural_network": "RESNET"}, 'neural_network = "RESNET" is not supported'),
+    ],
+)
+def test_racer_check_refuses_what_racer_cannot_honour(tmp_path: Path, metadata: dict, fragment: str) -> None:
+    path = tmp_path / "model_metadata.json"
+    path.write_text(json.dumps({"action_space": [{"steering_angle": 0, "speed": 1}], **metadata}))
+    done = racer("check", "--action-space", str(path))
+    assert done.returncode == 2
+    assert fragment in done.stderr and "model_metadata.json" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
+
+
+# --- starting from another run (DRfC pretrained, the console's clone) -------------------------------------------
+
+
+def stored_source(tmp_path: Path, files: dict[str, bytes], run: RunConfig) -> RunStore:
+    runs = RunStore(LocalStore(tmp_path / "store"))
+    for name, data in files.items():
+        runs.write_file("source", name, data)
+    runs.write_file("source", "config.json", run.model_copy(update={"run_id": "source"}).model_dump_json())
+    runs.save_checkpoint("source", 0, b"weights", {"created": 1.0})
+    runs.set_pointer("source", "best", 0)
+    return runs
+
+
+def test_pretrained_needs_the_same_action_space_and_network(tmp_path: Path) -> None:
+    run, files = build_run("new-run")
+    runs = stored_source(tmp_path, files, run)
+    assert check_pretrained(runs, run, files, "source:best").pretrained == "source:0"
+    assert check_pretrained(runs, run, files, "source").pretrained == "source:0"
+
+    other = dict(files)
+    other["model_metadata.json"] = json.dumps({"action_space": [{"steering_angle": 0.0, "speed": 2.0}]}).encode()
+    with pytest.raises(PretrainedError, match="action space differs"):
+        check_pretrained(runs, run, other, "source:best")
+    deep = run.model_copy(update={"policy": PolicyConfig(network="deep")})
+    with pytest.raises(PretrainedError, match="network"):
+        check_pretrained(runs, deep, files, "source:best")
+    with pytest.raises(PretrainedError, match="no_such_run"):
+        check_pretrained(runs, run, files, "no_such_run:best")
