@@ -12,7 +12,7 @@ import math
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from common.jsonfile import read_json_object
 
@@ -69,6 +69,16 @@ class ActionSpace(BaseModel):
     neural_network: str = "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"
     training_algorithm: str = "clipped_ppo"
     version: str = "5"
+    """The simapp version the file was written for; the simapp reads it with ``float()``."""
+
+    @field_validator("version")
+    @classmethod
+    def _numeric_version(cls, value: str) -> str:
+        try:
+            float(value)
+        except ValueError:
+            raise ValueError(f"version {value!r} is not a number (DeepRacer reads it with float())") from None
+        return value
 
     @model_validator(mode="after")
     def _consistent(self) -> ActionSpace:
@@ -165,7 +175,12 @@ NEURAL_NETWORKS: tuple[str, ...] = (
 def check_supported(space: ActionSpace, where: str) -> None:
     """Refuse, in one line naming ``where``, the key and the value, what racer would otherwise silently not honour."""
     checks = (
-        ("sensor", space.sensor, [list(s) for s in SUPPORTED_SENSORS], "stereo cameras and LiDAR are not built yet"),
+        (
+            "sensor",
+            space.sensor,
+            [list(s) for s in SUPPORTED_SENSORS],
+            "racer has the front-facing camera only: stereo cameras and LiDAR are not built yet",
+        ),
         ("training_algorithm", space.training_algorithm, list(SUPPORTED_ALGORITHMS), "racer trains clipped PPO"),
         ("neural_network", space.neural_network, list(NEURAL_NETWORKS), "DeepRacer's three camera networks"),
     )
@@ -175,13 +190,38 @@ def check_supported(space: ActionSpace, where: str) -> None:
             raise ActionSpaceError(f"{where}: {key} = {json.dumps(value)} is not supported ({why}); use {allowed}")
 
 
+LEGACY_CAMERA = "observation"
+"""The camera's name in the simapp's version-1 files (``markov/architecture/constants.py``, ``Input.OBSERVATION``)."""
+
+
+def _as_the_simapp_reads_it(data: dict) -> dict:
+    """The file's values as the simapp's ``parse_model_metadata`` (``markov/boto/s3/files/model_metadata.py``) takes
+    them: ``training_algorithm`` and ``action_space_type`` lower-cased and stripped; a file with no ``version`` and no
+    ``sensor``, or a ``version`` below 2, drives the front camera whatever its ``sensor`` says; ``version`` is
+    ``float()``-ed (a JSON number is accepted). A file without a type gets the one its ``action_space`` implies."""
+    data = dict(data)
+    for key in ("training_algorithm", "action_space_type"):
+        if isinstance(data.get(key), str):
+            data[key] = data[key].lower().strip()
+    version = data.get("version")
+    if isinstance(version, int | float) and not isinstance(version, bool):
+        data["version"] = str(version)
+    try:
+        legacy = float(data["version"]) < 2.0 if "version" in data else "sensor" not in data
+    except (TypeError, ValueError):
+        legacy = False  # the model's own check names the bad version
+    if legacy or data.get("sensor") == [LEGACY_CAMERA]:
+        data["sensor"] = ["FRONT_FACING_CAMERA"]
+    if "action_space_type" not in data:  # older DeepRacer files have no type: infer it
+        data["action_space_type"] = "continuous" if isinstance(data.get("action_space"), dict) else "discrete"
+    return data
+
+
 def load_action_space(path: str | Path) -> ActionSpace:
     """Read a DeepRacer ``model_metadata.json``; raise ActionSpaceError naming the file if it is unusable or asks
     for what racer cannot honour (another sensor, SAC)."""
     p = Path(path)
-    data = read_json_object(p, "action space file", ActionSpaceError)
-    if "action_space_type" not in data:  # older DeepRacer files have no type: infer it
-        data["action_space_type"] = "continuous" if isinstance(data.get("action_space"), dict) else "discrete"
+    data = _as_the_simapp_reads_it(read_json_object(p, "action space file", ActionSpaceError))
     try:
         space = ActionSpace.model_validate(data)
     except ValidationError as exc:

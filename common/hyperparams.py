@@ -6,17 +6,20 @@ Every key the DeepRacer simapp reads is accepted, with the simapp's default when
 and reported by :meth:`Hyperparameters.ignored` (``sac_alpha``; ``term_cond_avg_score``, which the simapp reads
 but never uses; ε-greedy settings with categorical exploration). racer adds four PPO knobs of its own
 (``clip_epsilon``, ``gae_lambda``, ``value_loss_coef``, ``max_grad_norm``; the simapp hard-codes 0.2 and 0.95 for
-the first two). Any other key is an error, so that a typo (``learning_rate`` for ``lr``) is caught instead of
-silently ignored.
+the first two). Any other key is what the simapp does with it, ignored (it reads the keys above with
+``hp_dict.get`` and nothing else), but never silently: :meth:`Hyperparameters.ignored` lists it. A key that looks
+like a misspelt known key (``learning_rate`` for ``lr``, ``batchsize``) is an error naming the key it resembles, since
+ignoring it would silently train with the default.
 """
 
 from __future__ import annotations
 
+import difflib
 import json
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator
 
 from common.jsonfile import read_json_object
 
@@ -40,6 +43,22 @@ SIMAPP_ONLY_KEYS: tuple[str, ...] = ("sac_alpha", "max_sample_count", "sampling_
 """Keys the simapp reads that racer accepts and does not use (SAC's entropy weight; the simapp's sample collector)."""
 RACER_KEYS: tuple[str, ...] = ("clip_epsilon", "gae_lambda", "value_loss_coef", "max_grad_norm")
 
+MISNAMED: dict[str, str] = {
+    "learning_rate": "lr",
+    "gamma": "discount_factor",
+    "discount": "discount_factor",
+    "entropy": "beta_entropy",
+    "entropy_coef": "beta_entropy",
+    "ent_coef": "beta_entropy",
+    "epochs": "num_epochs",
+    "n_epochs": "num_epochs",
+    "episodes_between_training": "num_episodes_between_training",
+    "clip_range": "clip_epsilon",
+    "gae": "gae_lambda",
+    "lambda": "gae_lambda",
+}
+"""Names other PPO libraries use for DeepRacer's keys: a file that has one meant the DeepRacer key."""
+
 HUBER = "huber"
 MEAN_SQUARED_ERROR = "mean squared error"
 
@@ -52,6 +71,7 @@ class Hyperparameters(BaseModel):
     """Training hyperparameters: DeepRacer's keys plus racer's PPO knobs."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, validate_assignment=True)
+    _unread: list[str] = PrivateAttr(default_factory=list)
 
     batch_size: int = Field(64, ge=1)
     """PPO minibatch size, steps (env transitions) per gradient step."""
@@ -132,6 +152,7 @@ class Hyperparameters(BaseModel):
             notes += [
                 f"{key} (only for e-greedy exploration)" for key in ("e_greedy_value", "epsilon_steps") if key in given
             ]
+        notes += [f"{key} (DeepRacer does not read it either)" for key in self._unread]
         return notes
 
     @property
@@ -160,10 +181,29 @@ def load_hyperparameters(path: str | Path) -> Hyperparameters:
     p = Path(path)
     where = f"hyperparameters file {str(p)!r}"
     data = read_json_object(p, "hyperparameters file", HyperparametersError)
+    unread = [key for key in data if key not in Hyperparameters.model_fields]
+    for key in unread:
+        meant = _resembles(key)
+        if meant:
+            raise HyperparametersError(f"{where}: unknown key {key!r} (did you mean {meant!r}?)")
     try:
-        return Hyperparameters.model_validate(data)
+        hp = Hyperparameters.model_validate({k: v for k, v in data.items() if k not in unread})
     except ValidationError as exc:
         raise HyperparametersError(f"{where}: {_describe(exc)}") from None
+    hp._unread = unread
+    return hp
+
+
+def _resembles(key: str) -> str | None:
+    """The known key an unknown one looks like a misspelling or another library's name of, if any."""
+    known = list(Hyperparameters.model_fields)
+    folded = key.lower().strip().replace("-", "_").replace(" ", "_")
+    if folded in known and folded != key:
+        return folded
+    if folded in MISNAMED:
+        return MISNAMED[folded]
+    close = difflib.get_close_matches(folded, known, n=1, cutoff=0.8)
+    return close[0] if close else None
 
 
 def _describe(exc: ValidationError) -> str:

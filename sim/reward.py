@@ -99,6 +99,10 @@ def _walk_tb(tb: TracebackType | None) -> list[tuple[FrameType, int]]:
     return frames
 
 
+FIRST_CALL_TIME_LIMIT_S = 30.0
+"""Seconds the first call of a loaded reward function may take (it often builds a racing line or a table)."""
+
+
 def _where(path: Path, step: int | None) -> str:
     return f"reward function {str(path)!r}" + ("" if step is None else f" at step {step}")
 
@@ -106,18 +110,29 @@ def _where(path: Path, step: int | None) -> str:
 class RewardFunction:
     """A loaded user ``reward_function``: call it with a params dict (and the step) to get a float.
 
-    ``time_limit_s`` bounds each call (``None``: no bound). It is enforced with SIGALRM, so only
-    when called from the main thread on a platform with ``signal.setitimer``; elsewhere calls are
+    ``time_limit_s`` bounds each call (``None``: no bound), except the first, which may take up to
+    ``first_call_time_limit_s`` (``None``: the same bound): reward functions commonly build a racing line or
+    a lookup table on their first call, and DeepRacer, which bounds no call, runs them. The bound is enforced with
+    SIGALRM, so only when called from the main thread on a platform with ``signal.setitimer``; elsewhere calls are
     unbounded. Python code is interrupted between bytecodes, so a long call into C is cut only
     when it returns.
     """
 
-    def __init__(self, path: str | Path, fn: Callable[[dict], Any], time_limit_s: float | None = 1.0) -> None:
-        if time_limit_s is not None and not (math.isfinite(time_limit_s) and time_limit_s > 0):
-            raise ValueError(f"time_limit_s must be a positive number of seconds or None, got {time_limit_s!r}")
+    def __init__(
+        self,
+        path: str | Path,
+        fn: Callable[[dict], Any],
+        time_limit_s: float | None = 1.0,
+        first_call_time_limit_s: float | None = FIRST_CALL_TIME_LIMIT_S,
+    ) -> None:
+        for name, value in (("time_limit_s", time_limit_s), ("first_call_time_limit_s", first_call_time_limit_s)):
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number of seconds or None, got {value!r}")
         self.path = Path(path)
         self.fn = fn
         self.time_limit_s = time_limit_s
+        self.first_call_time_limit_s = first_call_time_limit_s
+        self._called = False
 
     def __repr__(self) -> str:
         return f"RewardFunction({str(self.path)!r}, time_limit_s={self.time_limit_s!r})"
@@ -125,7 +140,7 @@ class RewardFunction:
     def __reduce__(self) -> tuple[Any, ...]:
         # The user's module is not in sys.modules, so the function itself cannot be pickled;
         # reload it from its file instead (e.g. when handing it to a spawned rollout worker).
-        return (load_reward_function, (self.path, self.time_limit_s))
+        return (load_reward_function, (self.path, self.time_limit_s, self.first_call_time_limit_s))
 
     def __call__(self, params: dict, step: int | None = None) -> float:
         """Return the user's reward for ``params`` as a float; raise RewardFunctionError on any failure.
@@ -135,12 +150,13 @@ class RewardFunction:
         ``params['waypoints']`` cannot change what the next step sees.
         """
         where = _where(self.path, step)
+        limit = self._limit()
         try:
-            value = self._call_limited(fresh_params(params))
+            value = self._call_limited(fresh_params(params), limit)
         except _RewardTimeout:
             suffix = "" if step is None else f" at step {step}"
             raise RewardFunctionError(
-                f"reward function {str(self.path)!r} took longer than {self.time_limit_s} s{suffix}"
+                f"reward function {str(self.path)!r} took longer than {limit} s{suffix}"
             ) from None
         except (Exception, SystemExit) as exc:
             line = _user_line(exc.__traceback__, self.path)
@@ -148,9 +164,15 @@ class RewardFunction:
             raise RewardFunctionError(f"{where} raised {_describe(exc)}{at_line}") from exc
         return _to_reward(value, where)
 
-    def _call_limited(self, params: dict) -> Any:
-        """Call the function, under a SIGALRM timer when that is possible here."""
-        limit = self.time_limit_s
+    def _limit(self) -> float | None:
+        """This call's time limit: the first call of a loaded function gets the larger one."""
+        first, self._called = not self._called, True
+        if first and self.time_limit_s is not None and self.first_call_time_limit_s is not None:
+            return max(self.time_limit_s, self.first_call_time_limit_s)
+        return self.time_limit_s
+
+    def _call_limited(self, params: dict, limit: float | None) -> Any:
+        """Call the function, under a SIGALRM timer of ``limit`` seconds when that is possible here."""
         if (
             limit is None
             or not hasattr(signal, "setitimer")
@@ -231,7 +253,9 @@ def _to_reward(value: object, where: str) -> float:
     return reward
 
 
-def load_reward_function(path: str | Path, time_limit_s: float | None = 1.0) -> RewardFunction:
+def load_reward_function(
+    path: str | Path, time_limit_s: float | None = 1.0, first_call_time_limit_s: float | None = FIRST_CALL_TIME_LIMIT_S
+) -> RewardFunction:
     """Load ``reward_function`` from a user's ``.py`` file, as a fresh module each time.
 
     Raises RewardFunctionError if the file is missing, not a readable ``.py`` file, has a syntax
@@ -275,7 +299,7 @@ def load_reward_function(path: str | Path, time_limit_s: float | None = 1.0) -> 
     if not callable(fn):
         raise RewardFunctionError(f"{name} defines reward_function as a {type(fn).__name__}, not a function")
     _check_signature(fn, name)
-    return RewardFunction(path, fn, time_limit_s=time_limit_s)
+    return RewardFunction(path, fn, time_limit_s, first_call_time_limit_s)
 
 
 def _new_module(path: Path) -> Any:

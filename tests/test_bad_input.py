@@ -36,7 +36,7 @@ TRAIN_CASES = [
     (["--reward-fn", "raises.py"], "'raises.py' at step 2 raised KeyError: 'no_such_key'"),
     (["--reward-fn", "slow.py"], "'slow.py' took longer than 1.0 s"),
     (["--reward-fn", "nan.py"], "'nan.py' at step 2 returned nan"),
-    (["--reward-fn", "none.py"], "'none.py' returned None"),
+    (["--reward-fn", "none.py"], "'none.py' at step 2 returned None"),
     (["--action-space", "broken.json"], "'broken.json' is not valid JSON"),
     (["--action-space", "space.json"], "'space.json'"),
     (["--hyperparams", "hp.json"], "batch_size = -3"),

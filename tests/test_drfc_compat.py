@@ -280,3 +280,36 @@ def test_pretrained_needs_the_same_action_space_and_network(tmp_path: Path) -> N
         check_pretrained(runs, deep, files, "source:best")
     with pytest.raises(PretrainedError, match="no_such_run"):
         check_pretrained(runs, run, files, "no_such_run:best")
+
+
+# --- model_metadata.json as the simapp's parse_model_metadata reads it ------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("extra", "sensor", "algorithm", "space_type"),
+    [
+        ({"version": 3}, ["FRONT_FACING_CAMERA"], "clipped_ppo", "discrete"),  # a JSON number: float() takes it
+        ({"version": "1", "sensor": ["STEREO_CAMERAS"]}, ["FRONT_FACING_CAMERA"], "clipped_ppo", "discrete"),  # < 2
+        ({"sensor": ["observation"]}, ["FRONT_FACING_CAMERA"], "clipped_ppo", "discrete"),  # the legacy camera name
+        ({"training_algorithm": " Clipped_PPO ", "action_space_type": "Discrete"}, None, "clipped_ppo", "discrete"),
+    ],
+)
+def test_model_metadata_values_read_as_the_simapp_reads_them(tmp_path, extra, sensor, algorithm, space_type) -> None:
+    # simapp markov/boto/s3/files/model_metadata.py parse_model_metadata: version float()-ed, sensor ignored below
+    # version 2, training_algorithm and action_space_type lower-cased and stripped.
+    from common.action_space import load_action_space
+
+    path = tmp_path / "model_metadata.json"
+    path.write_text(json.dumps({"action_space": [{"steering_angle": 0, "speed": 1}], **extra}))
+    space = load_action_space(path)
+    assert space.sensor == (sensor or ["FRONT_FACING_CAMERA"])
+    assert (space.training_algorithm, space.action_space_type) == (algorithm, space_type)
+
+
+def test_a_version_float_refuses_is_refused_in_one_line(tmp_path) -> None:
+    from common.action_space import ActionSpaceError, load_action_space
+
+    path = tmp_path / "model_metadata.json"
+    path.write_text(json.dumps({"action_space": [{"steering_angle": 0, "speed": 1}], "version": "five"}))
+    with pytest.raises(ActionSpaceError, match=r"model_metadata\.json.*version 'five' is not a number"):
+        load_action_space(path)

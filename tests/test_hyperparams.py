@@ -172,3 +172,20 @@ def test_assignment_is_validated() -> None:
     hp = Hyperparameters()
     with pytest.raises(ValidationError):
         hp.lr = -1.0
+
+
+def test_keys_deepracer_does_not_read_are_accepted_and_listed(tmp_path: Path) -> None:
+    # The simapp reads its keys with hp_dict.get and ignores the rest (mattcamp/deepracer-local has "pretrained").
+    hp = load_hyperparameters(_write(tmp_path, json.dumps(DEEPRACER_FILE | {"pretrained": "false", "notes": "v2"})))
+    assert hp.lr == DEEPRACER_FILE["lr"]
+    listed = " ".join(hp.ignored())
+    assert "pretrained (DeepRacer does not read it either)" in listed and "notes" in listed
+
+
+@pytest.mark.parametrize(
+    ("key", "meant"),
+    [("learning_rate", "lr"), ("batchsize", "batch_size"), ("Batch_Size", "batch_size"), ("num_epoch", "num_epochs")],
+)
+def test_a_key_that_looks_misspelt_is_refused_naming_the_key_it_resembles(tmp_path: Path, key, meant) -> None:
+    message = _error(tmp_path, json.dumps(DEEPRACER_FILE | {key: 1}))
+    assert f"unknown key {key!r} (did you mean {meant!r}?)" in message

@@ -428,12 +428,28 @@ def test_slow_function_times_out_quickly(tmp_path: Path) -> None:
         tmp_path,
         "import time\ndef reward_function(params):\n    time.sleep(5)\n    return 1.0\n",
         time_limit_s=0.2,
+        first_call_time_limit_s=None,
     )
     started = time.monotonic()
     with pytest.raises(RewardFunctionError) as info:
         fn(sample_params(), step=9)
     assert time.monotonic() - started < 2.0
     assert_one_line_error(info, "my_reward.py", "took longer than 0.2 s at step 9")
+
+
+def test_the_first_call_may_take_longer_as_in_deepracer(tmp_path: Path) -> None:
+    # Racing-line functions build their line on the first call; DeepRacer bounds no call, racer bounds the rest.
+    fn = load_src(
+        tmp_path,
+        "import time\nCALLS = []\ndef reward_function(params):\n"
+        "    CALLS.append(1)\n    time.sleep(0.5 if len(CALLS) < 3 else 0.0)\n    return 1.0\n",
+        time_limit_s=0.2,
+        first_call_time_limit_s=2.0,
+    )
+    assert fn(sample_params(), step=2) == 1.0
+    with pytest.raises(RewardFunctionError, match="took longer than 0.2 s at step 3"):
+        fn(sample_params(), step=3)
+    assert fn(sample_params(), step=4) == 1.0
 
 
 def test_timeout_not_swallowed_by_user_except(tmp_path: Path) -> None:
@@ -446,6 +462,7 @@ def test_timeout_not_swallowed_by_user_except(tmp_path: Path) -> None:
         "    except Exception:\n"
         "        return 1.0\n",
         time_limit_s=0.1,
+        first_call_time_limit_s=None,
     )
     with pytest.raises(RewardFunctionError, match="took longer than 0.1 s"):
         fn(sample_params(), step=1)
@@ -462,6 +479,7 @@ def test_timeout_caught_by_bare_except_still_reported(tmp_path: Path) -> None:
         "        pass\n"
         "    return 1.0\n",
         time_limit_s=0.1,
+        first_call_time_limit_s=None,
     )
     with pytest.raises(RewardFunctionError, match="took longer than 0.1 s at step 2"):
         fn(sample_params(), step=2)
@@ -478,7 +496,9 @@ def test_timer_and_handler_restored(tmp_path: Path) -> None:
     try:
         signal.setitimer(signal.ITIMER_REAL, 0.5)
         ok = RewardFunction(tmp_path / "r.py", lambda p: 1.0, time_limit_s=0.1)
-        slow = RewardFunction(tmp_path / "r.py", lambda p: time.sleep(1), time_limit_s=0.1)
+        slow = RewardFunction(
+            tmp_path / "r.py", lambda p: time.sleep(1), time_limit_s=0.1, first_call_time_limit_s=None
+        )
         assert ok(sample_params()) == 1.0
         with pytest.raises(RewardFunctionError):
             slow(sample_params())
