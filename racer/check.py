@@ -34,6 +34,8 @@ def merge_inputs(
 ) -> UserFiles:
     """The run's inputs: explicit options first, then what a DRfC folder says, then racer's defaults."""
     drfc = import_drfc(from_drfc) if from_drfc else None
+    if drfc is not None and drfc.track_error is not None and track is None:
+        raise drfc.track_error
 
     def pick(explicit: object, imported: object) -> str | None:
         chosen = explicit if explicit is not None else imported

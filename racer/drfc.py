@@ -15,6 +15,7 @@ each episode).
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,11 +52,24 @@ class DrfcImport:
     """Each variable used, with what racer does with it."""
     unmapped: list[str] = field(default_factory=list)
     """DR_* variables set in the files that have no racer meaning (yet)."""
+    track_error: DrfcError | None = None
+    """DR_WORLD_NAME names a track racer does not ship: the error to raise unless --track is given."""
 
 
-def read_env_file(path: Path) -> dict[str, str]:
-    """``KEY=value`` lines of a DRfC .env file (comments, blank lines and quotes as a shell would read them)."""
+_VAR = re.compile(r"\$(?:\{([A-Za-z_][A-Za-z0-9_]*)\}|([A-Za-z_][A-Za-z0-9_]*))")
+
+
+def _expand(value: str, known: dict[str, str]) -> str:
+    """``$VAR`` and ``${VAR}`` replaced as the shell that sources a DRfC .env file replaces them (unset: empty)."""
+    return _VAR.sub(lambda m: known.get(m.group(1) or m.group(2), os.environ.get(m.group(1) or m.group(2), "")), value)
+
+
+def read_env_file(path: Path, known: dict[str, str] | None = None) -> dict[str, str]:
+    """``KEY=value`` lines of a DRfC .env file, read as DRfC's scripts read it (they ``source`` it): comments, blank
+    lines and quotes as a shell reads them, and ``$VAR`` expanded from earlier lines, ``known`` and the environment
+    (not inside single quotes)."""
     values: dict[str, str] = {}
+    known = dict(known or {})
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:
@@ -68,11 +82,13 @@ def read_env_file(path: Path) -> dict[str, str]:
         if not m:
             raise DrfcError(f"DRfC file {str(path)!r} line {number}: expected KEY=value, got {line[:80]!r}")
         key, value = m.group(1), m.group(2)
-        if value[:1] in "\"'" and value[-1:] == value[:1] and len(value) >= 2:
+        if value[:1] == "'" and value[-1:] == "'" and len(value) >= 2:
             value = value[1:-1]
+        elif value[:1] == '"' and value[-1:] == '"' and len(value) >= 2:
+            value = _expand(value[1:-1], known)
         else:
-            value = value.split(" #", 1)[0].strip()
-        values[key] = value
+            value = _expand(value.split(" #", 1)[0].strip(), known)
+        values[key] = known[key] = value
     return values
 
 
@@ -97,7 +113,8 @@ def import_drfc(folder: str | Path) -> DrfcImport:
         path = _find(root, name)
         if path is not None:
             out.env_files.append(path)
-            env.update({k: (v, path) for k, v in read_env_file(path).items()})
+            known = {k: v for k, (v, _) in env.items()}
+            env.update({k: (v, path) for k, v in read_env_file(path, known).items()})
     if not (out.reward_fn or out.action_space or out.hyperparams or out.env_files):
         raise DrfcError(
             f"DRfC folder {str(root)!r} holds none of {', '.join(CUSTOM_FILES)}, run.env (also looked in custom_files/)"
@@ -147,7 +164,11 @@ def _number(where: _Where, kind: type, low: float, high: float) -> Any:
 def _world(out: DrfcImport, value: str, where: _Where) -> str:
     names = bundled_track_names()
     if value not in names:
-        raise where.error(f"racer does not ship this track; use one of {', '.join(names)}")
+        # Raised only if no --track is given: the user may pass the track's .npy instead.
+        out.track_error = where.error(
+            f"racer does not ship this track; give --track with its .npy file or one of {', '.join(names)}"
+        )
+        return ""
     out.track = value
     return f"--track {value}"
 
@@ -163,11 +184,20 @@ def _workers(out: DrfcImport, value: str, where: _Where) -> str:
     return f"--workers {out.workers}"
 
 
+def run_id_from_prefix(prefix: str) -> str | None:
+    """The racer run id for a DRfC S3 model prefix (``training/model-1`` is ``training-model-1``): a run id takes
+    letters, digits, '.', '_' and '-' only. The same mapping serves the model and the pretrained prefix, so a run
+    imported from DRfC is found again under the name DRfC's pretrained prefix gives it."""
+    rid = re.sub(r"[^A-Za-z0-9._-]+", "-", prefix.strip()).strip("-.")
+    return rid or None
+
+
 def _model_prefix(out: DrfcImport, value: str, where: _Where) -> str:
-    if not re.fullmatch(r"[A-Za-z0-9._-]+", value):
-        raise where.error("a racer run id takes letters, digits, '.', '_' and '-'")
-    out.run_id = value
-    return f"--run-id {value}"
+    rid = run_id_from_prefix(value)
+    if rid is None:
+        raise where.error("a run id needs at least one letter or digit")
+    out.run_id = rid
+    return f"--run-id {rid}"
 
 
 def _eval_trials(out: DrfcImport, value: str, where: _Where) -> str:
@@ -232,5 +262,8 @@ def _finish_start_positions(out: DrfcImport, env: dict[str, tuple[str, Path]]) -
         if checkpoint not in ("last", "best") and not checkpoint.isdigit():
             where = _Where(pre[1], "DR_LOCAL_S3_PRETRAINED_CHECKPOINT", checkpoint)
             raise where.error("expected last, best or a checkpoint number")
-        out.pretrained = f"{prefix[0]}:{'latest' if checkpoint == 'last' else checkpoint}"
+        source = run_id_from_prefix(prefix[0])
+        if source is None:
+            raise _Where(prefix[1], "DR_LOCAL_S3_PRETRAINED_PREFIX", prefix[0]).error("names no run")
+        out.pretrained = f"{source}:{'latest' if checkpoint == 'last' else checkpoint}"
         out.mapped["DR_LOCAL_S3_PRETRAINED"] = f"--pretrained {out.pretrained}"

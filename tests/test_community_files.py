@@ -206,3 +206,49 @@ def test_community_files_train(metadata: str, hyperparams: str, redis_url, run_i
         assert worker.poll_policy() and worker.policy_version == 1
     finally:
         worker.close()
+
+
+def drfc_folder_with(tmp_path: Path, run_env: str) -> Path:
+    """A DRfC folder holding a community run.env beside DRfC's default custom files."""
+    folder = tmp_path / "drfc"
+    (folder / "custom_files").mkdir(parents=True)
+    (folder / "run.env").write_bytes((COMMUNITY / "drfc" / run_env).read_bytes())
+    for name, src in (
+        ("reward_function.py", "reward/drfc_default_steering_penalty.py"),
+        ("model_metadata.json", "metadata/drfc_default_discrete5.json"),
+        ("hyperparameters.json", "hyperparams/drfc_default.json"),
+    ):
+        (folder / "custom_files" / name).write_bytes((COMMUNITY / src).read_bytes())
+    return folder
+
+
+def test_community_run_env_files_import_as_drfc_reads_them(tmp_path: Path) -> None:
+    from racer.check import merge_inputs
+
+    # DR_LOCAL_S3_MODEL_PREFIX=training/$DR_WORLD_NAME/first-model: expanded as the shell DRfC sources it with.
+    dots = merge_inputs(None, None, None, None, drfc_folder_with(tmp_path / "a", "dots_run.env"))
+    assert dots.track == "reInvent2019_track" and dots.run_id == "training-reInvent2019_track-first-model"
+    assert dots.eval_episodes == 3 and "DR_EVAL_OFF_TRACK_PENALTY" in dots.drfc.unmapped
+    template = merge_inputs(None, None, None, None, drfc_folder_with(tmp_path / "b", "drfc_template-run.env"))
+    assert template.track == "reinvent_base" and template.randomization["round_robin_divisions"] == 20
+
+
+def test_a_drfc_track_racer_does_not_ship_is_one_line_unless_track_is_given(tmp_path: Path) -> None:
+    from racer.check import merge_inputs
+    from racer.drfc import DrfcError
+
+    folder = drfc_folder_with(tmp_path, "codeiwomple_run.env")
+    with pytest.raises(DrfcError) as info:
+        merge_inputs(None, None, None, None, folder)
+    message = str(info.value)
+    assert "run.env" in message and "DR_WORLD_NAME='2022_april_pro_ccw'" in message and "\n" not in message
+    inputs = merge_inputs("reinvent_base", None, None, None, folder)
+    assert inputs.track == "reinvent_base" and inputs.pretrained == "conor-model-finals-v4-16:latest"
+    done = subprocess.run(
+        [sys.executable, "-m", "racer", "check", "--from-drfc", str(folder), "--track", "reinvent_base"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "no racer meaning, not used:" in done.stdout and "DR_CAR_NAME" in done.stdout

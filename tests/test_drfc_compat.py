@@ -204,7 +204,6 @@ def test_drfc_run_env_is_mapped_and_the_rest_listed(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("line", "fragment"),
     [
-        ("DR_WORLD_NAME=Nowhere_track", "DR_WORLD_NAME='Nowhere_track': racer does not ship this track"),
         ("DR_RACE_TYPE=OBJECT_AVOIDANCE", "DR_RACE_TYPE='OBJECT_AVOIDANCE': racer runs TIME_TRIAL only"),
         ("DR_TRAIN_ALTERNATE_DRIVING_DIRECTION=sometimes", "expected True or False"),
         ("DR_WORKERS=two", "DR_WORKERS='two': expected an integer"),
@@ -313,3 +312,35 @@ def test_a_version_float_refuses_is_refused_in_one_line(tmp_path) -> None:
     path.write_text(json.dumps({"action_space": [{"steering_angle": 0, "speed": 1}], "version": "five"}))
     with pytest.raises(ActionSpaceError, match=r"model_metadata\.json.*version 'five' is not a number"):
         load_action_space(path)
+
+
+def test_a_pretrained_run_starts_from_the_source_runs_weights(redis_url, tmp_path: Path) -> None:
+    import torch
+
+    from trainer.process import Trainer, TrainerOptions
+
+    store = str(tmp_path / "store")
+    source, files = build_run("source-run", track="Straight_track")
+    Trainer(source, TrainerOptions(redis_url, store, run_files=files)).start()
+    with torch.no_grad():  # give the source weights no fresh run could have by chance
+        trained = Trainer(source, TrainerOptions(redis_url, store, resume=True))
+        trained.start()
+        for p in trained.model.parameters():
+            p.fill_(0.125)
+        trained.version = 1  # as after an update
+        trained._checkpoint()
+    run, files = build_run("clone-run", track="Straight_track")
+    runs = RunStore(LocalStore(tmp_path / "store"))
+    run = check_pretrained(runs, run, files, "source-run:latest")
+    clone = Trainer(run, TrainerOptions(redis_url, store, run_files=files))
+    clone.start()
+    assert clone.version == 0
+    assert all(torch.all(p == 0.125) for p in clone.model.parameters())
+
+
+def test_env_files_expand_variables_as_the_shell_does(tmp_path: Path) -> None:
+    from racer.drfc import read_env_file
+
+    path = tmp_path / "run.env"
+    path.write_text("A=one\nB=$A/two\nC=\"${A}-x\"\nD='$A'\nE=$UNSET_RACER_TEST_VAR\n")
+    assert read_env_file(path) == {"A": "one", "B": "one/two", "C": "one-x", "D": "$A", "E": ""}
