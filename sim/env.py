@@ -8,6 +8,8 @@ lap complete, immobilized, reversed) apart from ``truncated`` (time limit).
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 from typing import Any
 
@@ -231,6 +233,13 @@ def preflight_reward(config: EnvConfig, steps: int = PREFLIGHT_STEPS) -> None:
     training. It drives straight at the slowest speed from the first start waypoint for ``steps`` steps,
     in both directions when the run drives both, so the function gets the params of a real episode.
     """
+    # What the function prints (many community functions print every call, some at import) belongs in the
+    # workers' logs, as in DeepRacer's, not between the lines racer train and racer check print.
+    with contextlib.redirect_stdout(io.StringIO()):
+        _drive_preflight(config, steps)
+
+
+def _drive_preflight(config: EnvConfig, steps: int) -> None:
     env = RacerEnv(config=config.model_copy(update={"camera": "ground"}))
     try:
         directions = (False, True) if _drives_reversed(config) else (False,)

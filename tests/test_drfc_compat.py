@@ -344,3 +344,12 @@ def test_env_files_expand_variables_as_the_shell_does(tmp_path: Path) -> None:
     path = tmp_path / "run.env"
     path.write_text("A=one\nB=$A/two\nC=\"${A}-x\"\nD='$A'\nE=$UNSET_RACER_TEST_VAR\n")
     assert read_env_file(path) == {"A": "one", "B": "one/two", "C": "one-x", "D": "$A", "E": ""}
+
+
+def test_what_the_function_prints_stays_out_of_racer_checks_output(tmp_path: Path) -> None:
+    path = tmp_path / "reward_function.py"
+    path.write_text("print('LOADED')\n\ndef reward_function(params):\n    print('PARAMS', params['steps'])\n    return 1.0\n")
+    done = racer("check", "--reward-fn", str(path))
+    assert done.returncode == 0, done.stderr
+    assert "LOADED" not in done.stdout and "PARAMS" not in done.stdout
+    assert "reward_function.py: ran on reinvent_base in a throwaway env: ok" in done.stdout
