@@ -348,8 +348,23 @@ def test_env_files_expand_variables_as_the_shell_does(tmp_path: Path) -> None:
 
 def test_what_the_function_prints_stays_out_of_racer_checks_output(tmp_path: Path) -> None:
     path = tmp_path / "reward_function.py"
-    path.write_text("print('LOADED')\n\ndef reward_function(params):\n    print('PARAMS', params['steps'])\n    return 1.0\n")
+    path.write_text(
+        "print('LOADED')\n\ndef reward_function(params):\n    print('PARAMS', params['steps'])\n    return 1.0\n"
+    )
     done = racer("check", "--reward-fn", str(path))
     assert done.returncode == 0, done.stderr
     assert "LOADED" not in done.stdout and "PARAMS" not in done.stdout
     assert "reward_function.py: ran on reinvent_base in a throwaway env: ok" in done.stdout
+
+
+def test_the_libraries_deepracer_documents_for_reward_functions_come_with_a_plain_install() -> None:
+    # DeepRacer's developer guide: reward functions may import math, random, numpy, scipy and shapely. They must be
+    # runtime dependencies of racer (not only of its dev or bench extras).
+    from importlib.metadata import requires
+
+    plain = {
+        r.split(";")[0].split(">")[0].split("<")[0].split("=")[0].strip()
+        for r in requires("racer") or []
+        if "extra" not in r
+    }
+    assert {"numpy", "scipy", "shapely"} <= plain
