@@ -2,14 +2,15 @@
 
 Every key the DeepRacer simapp reads is accepted, with the simapp's default when it is missing
 (``markov/sagemaker_graph_manager.py``, ``get_updated_hyper_parameters``; ``training_worker.py`` for
-``max_sample_count`` and ``sampling_frequency``). Keys that change nothing in racer's clipped PPO are accepted
-and reported by :meth:`Hyperparameters.ignored` (``sac_alpha``; ``term_cond_avg_score``, which the simapp reads
-but never uses; ε-greedy settings with categorical exploration). racer adds four PPO knobs of its own
-(``clip_epsilon``, ``gae_lambda``, ``value_loss_coef``, ``max_grad_norm``; the simapp hard-codes 0.2 and 0.95 for
-the first two). Any other key is what the simapp does with it, ignored (it reads the keys above with
-``hp_dict.get`` and nothing else), but never silently: :meth:`Hyperparameters.ignored` lists it. A key that looks
-like a misspelt known key (``learning_rate`` for ``lr``, ``batchsize``) is an error naming the key it resembles, since
-ignoring it would silently train with the default.
+``max_sample_count`` and ``sampling_frequency``). Keys that change nothing in racer's clipped PPO are accepted and
+reported by :meth:`Hyperparameters.ignored` (``sac_alpha``; ``term_cond_avg_score``, which the simapp reads but
+never uses; ε-greedy settings with categorical exploration). racer adds four PPO knobs of its own (``clip_epsilon``,
+``gae_lambda``, ``value_loss_coef``, ``max_grad_norm``; the simapp hard-codes 0.2 and 0.95 for the first two) and
+stability knobs (``STABILITY_KEYS``: target-KL early stopping, learning-rate and entropy schedules, the collapse
+guard), all off by default, which is DeepRacer's behaviour. Any other key is what the simapp does with it, ignored
+(it reads the keys above with ``hp_dict.get`` and nothing else), but never silently: :meth:`Hyperparameters.ignored`
+lists it. A key that looks like a misspelt known key (``learning_rate`` for ``lr``, ``batchsize``) is an error
+naming the key it resembles, since ignoring it would silently train with the default.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import json
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, ValidationInfo, field_validator
 
 from common.jsonfile import read_json_object
 
@@ -41,7 +42,23 @@ DEEPRACER_KEYS: tuple[str, ...] = (
 )
 SIMAPP_ONLY_KEYS: tuple[str, ...] = ("sac_alpha", "max_sample_count", "sampling_frequency")
 """Keys the simapp reads that racer accepts and does not use (SAC's entropy weight; the simapp's sample collector)."""
-RACER_KEYS: tuple[str, ...] = ("clip_epsilon", "gae_lambda", "value_loss_coef", "max_grad_norm")
+STABILITY_KEYS: tuple[str, ...] = (
+    "target_kl",
+    "lr_schedule",
+    "lr_final_fraction",
+    "entropy_schedule",
+    "entropy_final_fraction",
+    "schedule_updates",
+    "collapse_guard",
+    "collapse_min_best",
+    "collapse_drop",
+    "collapse_patience",
+    "collapse_lr_factor",
+)
+"""racer's stability knobs (README, "Stability knobs"): each off by default, which is DeepRacer's behaviour."""
+RACER_KEYS: tuple[str, ...] = ("clip_epsilon", "gae_lambda", "value_loss_coef", "max_grad_norm", *STABILITY_KEYS)
+FLAGS: tuple[str, ...] = ("collapse_guard",)
+"""The keys that take JSON true/false (every other key refuses a bool, which would pass as 1/0)."""
 
 MISNAMED: dict[str, str] = {
     "learning_rate": "lr",
@@ -118,11 +135,40 @@ class Hyperparameters(BaseModel):
     max_grad_norm: float = Field(0.5, gt=0)
     """racer: global gradient-norm clip, L2 norm of all parameter gradients."""
 
+    target_kl: float | None = Field(None, gt=0)
+    """racer: stop a policy update's remaining epochs once an epoch's mean approx KL(old || new) exceeds this,
+    nats; None = run every epoch (DeepRacer)."""
+    lr_schedule: Literal["constant", "linear"] = "constant"
+    """racer: ``constant`` (DeepRacer) or ``linear``: ``lr`` decays to ``lr * lr_final_fraction`` over
+    ``schedule_updates`` policy updates."""
+    lr_final_fraction: float = Field(0.1, ge=0, le=1)
+    """racer: the linear learning-rate schedule's final value, a fraction of ``lr``."""
+    entropy_schedule: Literal["constant", "linear"] = "constant"
+    """racer: ``constant`` (DeepRacer) or ``linear``: ``beta_entropy`` decays to ``beta_entropy *
+    entropy_final_fraction`` over ``schedule_updates`` policy updates."""
+    entropy_final_fraction: float = Field(0.1, ge=0, le=1)
+    """racer: the linear entropy schedule's final value, a fraction of ``beta_entropy``."""
+    schedule_updates: int = Field(500, ge=1)
+    """racer: length of the linear schedules, policy updates; the final value holds after it."""
+    collapse_guard: bool = Field(False, strict=True)
+    """racer: roll back to the ``best`` checkpoint (weights and optimizer) at a lower learning rate when the
+    robust evaluations of newer checkpoints collapse; false = never (DeepRacer)."""
+    collapse_min_best: float = Field(0.25, gt=0, le=1)
+    """racer: the guard acts only once the best checkpoint completes at least this fraction of its evaluation
+    trials (below it there is little to collapse from, and one lap more or less is noise)."""
+    collapse_drop: float = Field(0.5, gt=0, le=1)
+    """racer: an evaluation is collapsed when its completion is at most ``best completion * (1 - collapse_drop)``
+    (0.5: half the best's or less; 1: none at all)."""
+    collapse_patience: int = Field(2, ge=1)
+    """racer: consecutive collapsed evaluations (of checkpoints newer than the best) before rolling back."""
+    collapse_lr_factor: float = Field(0.5, gt=0, le=1)
+    """racer: each rollback multiplies the learning rate (and what the schedule gives later) by this."""
+
     @field_validator("*", mode="before")
     @classmethod
-    def _no_bools(cls, value: Any) -> Any:
-        # JSON true/false would otherwise pass as 1/0 for a number; no field here is a flag.
-        if isinstance(value, bool):
+    def _no_bools(cls, value: Any, info: ValidationInfo) -> Any:
+        # JSON true/false would otherwise pass as 1/0 for a number; only the FLAGS are flags.
+        if isinstance(value, bool) and info.field_name not in FLAGS:
             raise ValueError("expected a number or a string, not true/false")
         return value
 
@@ -152,8 +198,26 @@ class Hyperparameters(BaseModel):
             notes += [
                 f"{key} (only for e-greedy exploration)" for key in ("e_greedy_value", "epsilon_steps") if key in given
             ]
+        notes += self._idle_stability_keys(given)
         notes += [f"{key} (DeepRacer does not read it either)" for key in self._unread]
         return notes
+
+    def _idle_stability_keys(self, given: set[str]) -> list[str]:
+        """Stability knobs given in the file whose switch is off, so that they change nothing."""
+        idle = []
+        if self.lr_schedule == "constant" and "lr_final_fraction" in given:
+            idle.append("lr_final_fraction (only with lr_schedule linear)")
+        if self.entropy_schedule == "constant" and "entropy_final_fraction" in given:
+            idle.append("entropy_final_fraction (only with entropy_schedule linear)")
+        if self.lr_schedule == self.entropy_schedule == "constant" and "schedule_updates" in given:
+            idle.append("schedule_updates (only with a linear schedule)")
+        if not self.collapse_guard:
+            idle += [
+                f"{key} (only with collapse_guard true)"
+                for key in STABILITY_KEYS
+                if key.startswith("collapse_") and key != "collapse_guard" and key in given
+            ]
+        return idle
 
     @property
     def value_loss_kind(self) -> Literal["huber", "mse"]:

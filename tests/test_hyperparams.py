@@ -10,6 +10,8 @@ from pydantic import ValidationError
 
 from common.hyperparams import (
     DEEPRACER_KEYS,
+    RACER_KEYS,
+    STABILITY_KEYS,
     Hyperparameters,
     HyperparametersError,
     load_hyperparameters,
@@ -157,6 +159,22 @@ def test_unknown_key_is_a_typo(tmp_path: Path) -> None:
         ("clip_epsilon", 0.0),
         ("gae_lambda", 1.1),
         ("max_grad_norm", 0),
+        ("target_kl", 0),
+        ("target_kl", -0.01),
+        ("target_kl", True),
+        ("lr_schedule", "cosine"),
+        ("lr_final_fraction", 1.5),
+        ("entropy_schedule", "exponential"),
+        ("entropy_final_fraction", -0.1),
+        ("schedule_updates", 0),
+        ("collapse_guard", 1),
+        ("collapse_guard", "yes"),
+        ("collapse_min_best", 0),
+        ("collapse_drop", 0),
+        ("collapse_drop", 1.5),
+        ("collapse_patience", 0),
+        ("collapse_lr_factor", 0),
+        ("collapse_lr_factor", 2),
     ],
 )
 def test_bad_value_names_key_and_value(tmp_path: Path, key: str, value: object) -> None:
@@ -188,4 +206,61 @@ def test_keys_deepracer_does_not_read_are_accepted_and_listed(tmp_path: Path) ->
 )
 def test_a_key_that_looks_misspelt_is_refused_naming_the_key_it_resembles(tmp_path: Path, key, meant) -> None:
     message = _error(tmp_path, json.dumps(DEEPRACER_FILE | {key: 1}))
+    assert f"unknown key {key!r} (did you mean {meant!r}?)" in message
+
+
+# --- racer's stability knobs ---------------------------------------------------------------------------
+
+STABILITY_FILE = {
+    "target_kl": 0.02,
+    "lr_schedule": "linear",
+    "lr_final_fraction": 0.2,
+    "entropy_schedule": "linear",
+    "entropy_final_fraction": 0.0,
+    "schedule_updates": 300,
+    "collapse_guard": True,
+    "collapse_min_best": 0.5,
+    "collapse_drop": 0.4,
+    "collapse_patience": 3,
+    "collapse_lr_factor": 0.25,
+}
+
+
+def test_stability_knobs_are_off_by_default_which_is_deepracer(tmp_path: Path) -> None:
+    hp = load_hyperparameters(_write(tmp_path, json.dumps(DEEPRACER_FILE)))
+    assert hp.target_kl is None  # every epoch runs
+    assert hp.lr_schedule == "constant" and hp.entropy_schedule == "constant"  # lr and beta_entropy as given
+    assert hp.collapse_guard is False
+    assert set(STABILITY_KEYS) <= set(RACER_KEYS)
+    assert not set(STABILITY_KEYS) & set(json.loads(hp.to_json()))  # a default file stays DeepRacer's
+
+
+def test_stability_knobs_load_and_round_trip(tmp_path: Path) -> None:
+    hp = load_hyperparameters(_write(tmp_path, json.dumps(DEEPRACER_FILE | STABILITY_FILE)))
+    assert hp.model_dump(include=set(STABILITY_KEYS)) == STABILITY_FILE
+    assert not [note for note in hp.ignored() if note.split()[0] in STABILITY_KEYS]  # every switch is on
+    data = json.loads(hp.to_json())
+    assert {k: data[k] for k in STABILITY_KEYS} == STABILITY_FILE  # every one differs from its default
+    assert load_hyperparameters(_write(tmp_path, hp.to_json())) == hp
+
+
+def test_collapse_guard_takes_true_and_false_where_numbers_refuse_them(tmp_path: Path) -> None:
+    assert load_hyperparameters(_write(tmp_path, '{"collapse_guard": true}')).collapse_guard is True
+    assert load_hyperparameters(_write(tmp_path, '{"collapse_guard": false}')).collapse_guard is False
+    assert "collapse_drop = true" in _error(tmp_path, '{"collapse_guard": true, "collapse_drop": true}')
+
+
+def test_knobs_whose_switch_is_off_are_listed_as_unused(tmp_path: Path) -> None:
+    data = {"lr_final_fraction": 0.2, "schedule_updates": 50, "collapse_drop": 0.3, "collapse_lr_factor": 0.1}
+    listed = " ".join(load_hyperparameters(_write(tmp_path, json.dumps(data))).ignored())
+    assert "lr_final_fraction (only with lr_schedule linear)" in listed
+    assert "schedule_updates (only with a linear schedule)" in listed
+    assert "collapse_drop (only with collapse_guard true)" in listed and "collapse_lr_factor" in listed
+    switched_on = data | {"lr_schedule": "linear", "collapse_guard": True}
+    assert load_hyperparameters(_write(tmp_path, json.dumps(switched_on))).ignored() == []
+
+
+@pytest.mark.parametrize(("key", "meant"), [("collapse_gaurd", "collapse_guard"), ("target-kl", "target_kl")])
+def test_a_misspelt_stability_knob_is_refused(tmp_path: Path, key: str, meant: str) -> None:
+    message = _error(tmp_path, json.dumps({key: 1}))
     assert f"unknown key {key!r} (did you mean {meant!r}?)" in message

@@ -10,11 +10,14 @@ import torch
 from common.policy import PolicyConfig, build_policy
 from trainer.ppo import (
     PPOBatch,
+    approx_kl,
     compute_gae,
     entropy_bonus,
     explained_variance,
+    kl_exceeded,
     normalize_advantages,
     policy_loss,
+    scheduled,
     update,
     value_loss,
 )
@@ -153,6 +156,49 @@ def test_approx_kl_zero_when_logps_equal() -> None:
     assert loss.item() == pytest.approx(-(1 - 1 + 2) / 3)  # ratio 1: loss = -mean(A)
 
 
+def test_approx_kl_by_hand() -> None:
+    # ratio = exp(new - old) = 0.5: (0.5 - 1) - ln 0.5 = -0.5 + 0.6931472 = 0.1931472
+    # ratio = 2:                  (2 - 1)   - ln 2   =  1   - 0.6931472 = 0.3068528
+    # mean = 0.25
+    old = t(math.log(0.5), math.log(0.5))
+    new = t(math.log(0.25), math.log(1.0))
+    assert approx_kl(new, old).item() == pytest.approx(0.25, abs=1e-6)
+    assert approx_kl(t(math.log(0.5)), t(0.0)).item() == pytest.approx((0.5 - 1) - math.log(0.5), abs=1e-6)
+    assert approx_kl(old, old.clone()).item() == 0.0
+    assert not approx_kl(new.requires_grad_(), old).requires_grad
+
+
+def test_kl_exceeded_only_when_a_target_is_set() -> None:
+    assert kl_exceeded(10.0, None) is False  # off: DeepRacer runs every epoch
+    assert kl_exceeded(0.03, 0.02) is True
+    assert kl_exceeded(0.02, 0.02) is False and kl_exceeded(0.01, 0.02) is False
+
+
+# --- schedules ---------------------------------------------------------------------------------------
+
+
+def test_constant_schedule_is_the_initial_value() -> None:
+    assert [scheduled("constant", 3e-4, 0.1, k, 10) for k in (0, 5, 10, 1000)] == [3e-4] * 4
+
+
+def test_linear_schedule_by_hand() -> None:
+    # 1e-3 down to 0.1 of it over 10 updates: 1e-3 * (1 - 0.9 * k / 10), then 1e-4 for ever
+    values = [scheduled("linear", 1e-3, 0.1, k, 10) for k in (0, 1, 5, 10, 11, 500)]
+    assert values == pytest.approx([1e-3, 9.1e-4, 5.5e-4, 1e-4, 1e-4, 1e-4], rel=1e-12)
+    # entropy 0.01 to 0 over 4 updates: 0.01, 0.0075, 0.005, 0.0025, 0
+    assert [scheduled("linear", 0.01, 0.0, k, 4) for k in range(6)] == pytest.approx(
+        [0.01, 0.0075, 0.005, 0.0025, 0.0, 0.0], abs=1e-15
+    )
+    assert scheduled("linear", 2.0, 1.0, 3, 4) == 2.0  # a final fraction of 1 is constant
+
+
+def test_schedule_refuses_an_unknown_kind_or_no_length() -> None:
+    with pytest.raises(ValueError, match="cosine"):
+        scheduled("cosine", 1.0, 0.1, 0, 10)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="at least 1"):
+        scheduled("linear", 1.0, 0.1, 0, 0)
+
+
 # --- value_loss, entropy, normalization, explained variance -----------------------------------------
 
 
@@ -206,13 +252,15 @@ def _bandit(seed: int = 0, n: int = 16) -> tuple[torch.nn.Module, PPOBatch]:
     return model, PPOBatch(obs, actions, old_logp, advantages, advantages + old_values, old_values)
 
 
-def _run_update(model: torch.nn.Module, batch: PPOBatch, seed: int) -> dict[str, float]:
+def _run_update(
+    model: torch.nn.Module, batch: PPOBatch, seed: int, epochs: int = 4, target_kl: float | None = None
+) -> dict[str, float]:
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
     return update(
         model,
         optimizer,
         batch,
-        epochs=4,
+        epochs=epochs,
         minibatch_size=8,
         clip_eps=0.2,
         beta_entropy=0.01,
@@ -220,6 +268,7 @@ def _run_update(model: torch.nn.Module, batch: PPOBatch, seed: int) -> dict[str,
         loss_type="huber",
         max_grad_norm=0.5,
         generator=torch.Generator().manual_seed(seed),
+        target_kl=target_kl,
     )
 
 
@@ -234,7 +283,8 @@ def test_update_prefers_the_advantaged_action() -> None:
     stats = _run_update(model, batch, seed=0)
     assert _p_action0(model, batch) > before + 0.05
     expected = {"policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction", "explained_variance", "grad_norm"}
-    assert set(stats) == expected
+    assert set(stats) == expected | {"epochs_run", "epoch_kl"}
+    assert stats["epochs_run"] == 4  # no target_kl: every epoch, as DeepRacer
     assert all(math.isfinite(v) for k, v in stats.items() if k != "explained_variance")
     assert stats["approx_kl"] >= 0 and 0 <= stats["clip_fraction"] <= 1 and stats["grad_norm"] > 0
 
@@ -263,3 +313,29 @@ def test_update_continuous_runs() -> None:
 def test_ppo_batch_rows_checked() -> None:
     with pytest.raises(ValueError, match="returns"):
         PPOBatch(torch.zeros(2, 1), torch.zeros(2), torch.zeros(2), torch.zeros(2), torch.zeros(3), torch.zeros(2))
+
+
+def _same_weights(a: torch.nn.Module, b: torch.nn.Module) -> bool:
+    return all(torch.equal(pa, pb) for pa, pb in zip(a.state_dict().values(), b.state_dict().values(), strict=True))
+
+
+def test_target_kl_stops_the_remaining_epochs() -> None:
+    # The first epoch's minibatches move the policy (KL > 0 from the second minibatch on), so a tiny target stops
+    # the update after that epoch: the same weights as a one-epoch update with the same seed.
+    model, batch = _bandit(seed=1)
+    stats = _run_update(model, batch, seed=5, target_kl=1e-9)
+    one_epoch, batch_b = _bandit(seed=1)
+    reference = _run_update(one_epoch, batch_b, seed=5, epochs=1)
+    assert stats["epochs_run"] == 1 and stats["epoch_kl"] > 1e-9
+    assert stats["epoch_kl"] == pytest.approx(reference["approx_kl"], rel=0, abs=0)  # the one epoch's mean KL
+    assert _same_weights(model, one_epoch)
+
+
+def test_a_target_kl_never_reached_changes_nothing() -> None:
+    model_a, batch_a = _bandit(seed=2)
+    model_b, batch_b = _bandit(seed=2)
+    stats_a = _run_update(model_a, batch_a, seed=9)
+    stats_b = _run_update(model_b, batch_b, seed=9, target_kl=1e9)
+    assert stats_b["epochs_run"] == 4
+    assert stats_a == pytest.approx(stats_b, nan_ok=True, rel=0, abs=0)
+    assert _same_weights(model_a, model_b)

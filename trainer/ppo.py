@@ -3,6 +3,9 @@
 The functions follow CleanRL's PPO (clipped surrogate, per-minibatch advantage normalization, global
 gradient-norm clipping) with SB3's typed batch. Each is tested against hand-computed values in
 ``tests/test_ppo.py``.
+
+racer's stability knobs live here too, all off by default (DeepRacer has none of them): target-KL early stopping
+of the epochs (``update(target_kl=...)``) and the learning-rate / entropy schedules (``scheduled``).
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import torch.nn.functional as F
 from torch import nn
 
 ValueLossKind = Literal["huber", "mse"]
+ScheduleKind = Literal["constant", "linear"]
 
 
 @torch.no_grad()
@@ -74,15 +78,25 @@ def policy_loss(
     low-variance, always non-negative estimator of KL(old || new) (Schulman's k3). The two statistics carry
     no gradient.
     """
-    log_ratio = new_logp - old_logp
-    ratio = log_ratio.exp()
+    ratio = (new_logp - old_logp).exp()
     surrogate = ratio * advantages
     clipped = ratio.clamp(1.0 - clip_eps, 1.0 + clip_eps) * advantages
     loss = -torch.min(surrogate, clipped).mean()
     with torch.no_grad():
         clip_fraction = ((ratio - 1.0).abs() > clip_eps).float().mean()
-        approx_kl = ((ratio - 1.0) - log_ratio).mean()
-    return loss, clip_fraction, approx_kl
+    return loss, clip_fraction, approx_kl(new_logp, old_logp)
+
+
+@torch.no_grad()
+def approx_kl(new_logp: torch.Tensor, old_logp: torch.Tensor) -> torch.Tensor:
+    """Estimate of KL(old || new) from log-probabilities of actions sampled by the old policy.
+
+    mean((ratio - 1) - log ratio) with ratio = exp(new_logp - old_logp): Schulman's k3 estimator, unbiased,
+    never negative for any sample (x - 1 >= log x), and of lower variance than mean(old_logp - new_logp).
+    Carries no gradient.
+    """
+    log_ratio = new_logp - old_logp
+    return ((log_ratio.exp() - 1.0) - log_ratio).mean()
 
 
 def value_loss(values: torch.Tensor, returns: torch.Tensor, kind: ValueLossKind = "huber") -> torch.Tensor:
@@ -164,28 +178,67 @@ def update(
     loss_type: ValueLossKind,
     max_grad_norm: float,
     generator: torch.Generator,
+    target_kl: float | None = None,
 ) -> dict[str, float]:
     """PPO epochs over ``batch``; returns the means over minibatches of the losses and statistics.
 
     Each epoch shuffles the rows with ``generator`` (so a seed makes the update reproducible) and takes
     minibatches of ``minibatch_size`` (the last may be smaller). ``model.evaluate(obs, actions)`` must return
     (log_prob, entropy, value). Keys: policy_loss, value_loss, entropy, approx_kl, clip_fraction, grad_norm
-    (before clipping) and explained_variance (of the batch's old values).
+    (before clipping), explained_variance (of the batch's old values), epochs_run and epoch_kl (the mean
+    approx KL of the last epoch run).
+
+    ``target_kl`` (None = off, as DeepRacer) stops the remaining epochs once an epoch's mean approx KL exceeds
+    it. Each minibatch's KL is measured before its own step, so an epoch's mean covers every row of the batch
+    with the policy as it moved during that epoch, at no cost (a KL measured after each epoch would take one more
+    forward pass over the whole batch per epoch).
     """
     model.train()
     sums = dict.fromkeys(("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction", "grad_norm"), 0.0)
-    n_steps = 0
+    n_steps = epochs_run = 0
+    epoch_kl = 0.0
     for _ in range(epochs):
         order = torch.randperm(len(batch), generator=generator)
+        kls = []
         for start in range(0, len(batch), minibatch_size):
             mb = batch.select(order[start : start + minibatch_size])
             stats = minibatch_step(model, optimizer, mb, clip_eps, beta_entropy, value_coef, loss_type, max_grad_norm)
             for key, value in stats.items():
                 sums[key] += value
+            kls.append(stats["approx_kl"])
             n_steps += 1
+        epochs_run += 1
+        epoch_kl = sum(kls) / max(len(kls), 1)
+        if kl_exceeded(epoch_kl, target_kl):
+            break
     means = {key: total / max(n_steps, 1) for key, total in sums.items()}
     means["explained_variance"] = explained_variance(batch.old_values, batch.returns)
+    means["epochs_run"] = float(epochs_run)
+    means["epoch_kl"] = epoch_kl
     return means
+
+
+def kl_exceeded(kl: float, target_kl: float | None) -> bool:
+    """True when early stopping is on (``target_kl`` not None) and ``kl`` is above the target."""
+    return target_kl is not None and kl > target_kl
+
+
+def scheduled(kind: ScheduleKind, initial: float, final_fraction: float, k: int, length: int) -> float:
+    """A schedule's value before policy update ``k`` (0 = the first update).
+
+    ``constant``: ``initial`` at every k (DeepRacer). ``linear``: from ``initial`` at k = 0 down (or up) to
+    ``initial * final_fraction`` at k = ``length``, and that final value after it::
+
+        initial * (1 + (final_fraction - 1) * min(k / length, 1))
+    """
+    if kind == "constant":
+        return initial
+    if kind == "linear":
+        if length < 1:
+            raise ValueError(f"schedule length must be at least 1 update, got {length}")
+        done = min(max(k, 0) / length, 1.0)
+        return initial * (1.0 + (final_fraction - 1.0) * done)
+    raise ValueError(f"schedule must be 'constant' or 'linear', got {kind!r}")
 
 
 def minibatch_step(
@@ -201,7 +254,7 @@ def minibatch_step(
     """One gradient step on one minibatch; returns its losses and statistics."""
     new_logp, entropy, values = model.evaluate(mb.obs, mb.actions)
     advantages = normalize_advantages(mb.advantages)  # per minibatch, as in CleanRL
-    pg_loss, clip_fraction, approx_kl = policy_loss(new_logp, mb.old_logp, advantages, clip_eps)
+    pg_loss, clip_fraction, kl = policy_loss(new_logp, mb.old_logp, advantages, clip_eps)
     v_loss = value_loss(values, mb.returns, loss_type)
     ent = entropy_bonus(entropy)
     total = pg_loss + value_coef * v_loss - beta_entropy * ent
@@ -213,7 +266,7 @@ def minibatch_step(
         "policy_loss": pg_loss.item(),
         "value_loss": v_loss.item(),
         "entropy": ent.item(),
-        "approx_kl": approx_kl.item(),
+        "approx_kl": kl.item(),
         "clip_fraction": clip_fraction.item(),
         "grad_norm": grad_norm.item(),
     }

@@ -4,6 +4,11 @@ DeepRacer trains after every ``num_episodes_between_training`` episodes; so do w
 buffered until that many episodes have ended in them, then PPO runs ``num_epochs`` epochs over the
 buffer in minibatches of ``batch_size``, a checkpoint is written to the store (pointer last) and the
 new version is announced in Redis, where workers pick it up between segments.
+
+racer's stability knobs (all off by default, as DeepRacer has none) act here: the learning-rate and entropy
+schedules set each update's coefficients, ``target_kl`` stops an update's epochs early (``trainer.ppo.update``),
+and the collapse guard (``Trainer.guard``) rolls the run back to its ``best`` checkpoint when the evaluator's
+robust evaluations of newer checkpoints collapse.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ import tempfile
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import torch
@@ -39,7 +44,8 @@ from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
 from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
 from sim.env import RacerEnv
-from trainer.ppo import PPOBatch, compute_gae, update
+from trainer.evaluator import evaluation_key
+from trainer.ppo import PPOBatch, compute_gae, scheduled, update
 
 log = logging.getLogger("racer.trainer")
 
@@ -50,6 +56,10 @@ class PretrainedError(ValueError):
 
 METRICS_FILE = "metrics.jsonl"
 """Per-iteration figures of a run, one JSON object a line, in the run's folder of the store."""
+
+EVALUATION_WINDOW = 64
+"""Newest evaluation summaries the collapse guard reads from Redis each time: the evaluator adds one per
+checkpoint it scores (tens of seconds each), so far fewer than this arrive between two looks a second apart."""
 
 
 @dataclass
@@ -96,6 +106,86 @@ class Stats:
         self.dropped[reason] = self.dropped.get(reason, 0) + 1
 
 
+@dataclass
+class Stability:
+    """What the collapse guard has done to the run; kept in every checkpoint's metadata, so a resumed run keeps it."""
+
+    lr_scale: float = 1.0
+    """Product of ``collapse_lr_factor`` over the rollbacks so far: it multiplies the scheduled learning rate."""
+    collapses: int = 0
+    """Collapses detected."""
+    rollbacks: int = 0
+    """Collapses rolled back (one fewer than ``collapses`` only if the best checkpoint could not be read)."""
+    floor: int = 0
+    """First version of the current lineage (the version a rollback published): evaluations and segments of older
+    versions belong to the abandoned policies and are ignored."""
+
+    @classmethod
+    def from_meta(cls, meta: dict) -> Stability:
+        """The state saved in a checkpoint's metadata; the initial state for a checkpoint from before the guard."""
+        saved = meta.get("stability") or {}
+        return cls(
+            lr_scale=float(saved.get("lr_scale", 1.0)),
+            collapses=int(saved.get("collapses", 0)),
+            rollbacks=int(saved.get("rollbacks", 0)),
+            floor=int(saved.get("floor", 0)),
+        )
+
+
+def is_collapsed(completion: float, best_completion: float, min_best: float, drop: float) -> bool:
+    """True when an evaluation's completion has collapsed against the best checkpoint's.
+
+    Only a best that completes at least ``min_best`` of its trials can collapse (``racer train`` evaluates 6 or 12
+    trials: one lap more or less is noise); collapsed means at most ``best_completion * (1 - drop)``: a relative
+    drop, so 0.5 means "half the best's completion or less" whatever the best's.
+    """
+    return best_completion >= min_best and completion <= best_completion * (1.0 - drop)
+
+
+@dataclass
+class CollapseWatch:
+    """The collapse guard's memory: the evaluations it has looked at, and the current streak of collapsed ones.
+
+    A streak counts consecutive evaluated checkpoints newer than the best that have all collapsed; any other
+    evaluation (a good one, the best itself, an older one) ends it. ``patience`` of them in a row is a collapse:
+    with 2 (the default), one unlucky evaluation is not enough, and a real collapse (issue 16 saw 5 or 6 versions
+    in a row at 0 %) costs one checkpoint more.
+    """
+
+    min_best: float
+    drop: float
+    patience: int
+    floor: int = 0
+    seen: int = -1
+    """Newest version looked at."""
+    streak: list[dict] = field(default_factory=list)
+
+    def fresh(self, evaluations: list[dict]) -> list[dict]:
+        """The summaries not looked at yet, of the current lineage, oldest first."""
+        return sorted(
+            (e for e in evaluations if e["version"] > self.seen and e["version"] >= self.floor),
+            key=lambda e: e["version"],
+        )
+
+    def observe(self, evaluation: dict, best: tuple[int, float] | None) -> bool:
+        """Look at one new summary (``version``, ``completion_rate``) given the best (version, completion), in
+        version order; True when it completes a streak of ``patience`` collapsed evaluations."""
+        version = evaluation["version"]
+        if version <= self.seen or version < self.floor:
+            return False
+        self.seen = version
+        newer = best is not None and version > best[0]
+        if not (newer and is_collapsed(evaluation["completion_rate"], best[1], self.min_best, self.drop)):
+            self.streak = []
+            return False
+        self.streak.append(evaluation)
+        return len(self.streak) >= self.patience
+
+    def restart(self, floor: int) -> None:
+        """Forget the streak; from now on look only at versions from ``floor`` on."""
+        self.floor, self.streak = floor, []
+
+
 class Trainer:
     """PPO over segments from Redis; see the module docstring."""
 
@@ -117,6 +207,8 @@ class Trainer:
         self.buffer: list[Segment] = []
         self.last_id = "0-0"
         self.metrics: list[dict] = []
+        self.stability = Stability()
+        self.watch = CollapseWatch(self.hp.collapse_min_best, self.hp.collapse_drop, self.hp.collapse_patience)
         self.tb = _summary_writer(opts.store, run.run_id) if opts.tensorboard else None
         self._workdir = tempfile.TemporaryDirectory(prefix="racer-trainer-")
 
@@ -180,20 +272,26 @@ class Trainer:
             log.warning("latest pointer names version %s but version %d is whole: resuming from it", pointer, newest)
             self.runs.set_pointer(self.run.run_id, "latest", newest)
         payload, meta = self.runs.load_checkpoint(self.run.run_id, newest)
+        self._load_state(payload)
+        self.version = int(meta["version"])
+        self.stats.env_steps = int(meta.get("env_steps", 0))
+        self.stats.episodes = int(meta.get("episodes", 0))
+        self.stats.iteration = int(meta.get("iteration", self.version))
+        self.stability = Stability.from_meta(meta)
+        self.watch.restart(self.stability.floor)
+        with contextlib.suppress(StoreKeyError):
+            lines = self.runs.read_file(self.run.run_id, METRICS_FILE).decode().splitlines()
+            self.metrics = [json.loads(line) for line in lines if line.strip()]
+        log.info("resumed run %s at version %d (%d env steps)", self.run.run_id, self.version, self.stats.env_steps)
+
+    def _load_state(self, payload: bytes) -> None:
+        """Weights and (when the checkpoint has it) optimizer state from checkpoint bytes."""
         model_sd, optim_sd = checkpoint_from_bytes(payload)
         self.model.load_state_dict(model_sd)
         if optim_sd is not None:
             self.optimizer.load_state_dict(optim_sd)
             for group in self.optimizer.param_groups:  # a checkpoint from an older trainer says fused=None
                 group["fused"] = self.optimizer.defaults["fused"]
-        self.version = int(meta["version"])
-        self.stats.env_steps = int(meta.get("env_steps", 0))
-        self.stats.episodes = int(meta.get("episodes", 0))
-        self.stats.iteration = int(meta.get("iteration", self.version))
-        with contextlib.suppress(StoreKeyError):
-            lines = self.runs.read_file(self.run.run_id, METRICS_FILE).decode().splitlines()
-            self.metrics = [json.loads(line) for line in lines if line.strip()]
-        log.info("resumed run %s at version %d (%d env steps)", self.run.run_id, self.version, self.stats.env_steps)
 
     def _load_pretrained(self) -> None:
         """Version 0 takes another run's weights (``run.pretrained``); a shape mismatch is one clear error."""
@@ -215,15 +313,18 @@ class Trainer:
         self.model.load_state_dict(model_sd)
         log.info("run %s starts from run %s version %s", self.run.run_id, source, meta.get("version"))
 
-    def _checkpoint(self) -> dict:
-        """Save the current version; through a store outage, retry the same bytes and metadata until it is whole."""
+    def _checkpoint(self, **extra: object) -> dict:
+        """Save the current version (``extra`` goes into its metadata); through a store outage, retry the same
+        bytes and metadata until it is whole."""
         payload = checkpoint_to_bytes(self.model.state_dict(), self.optimizer.state_dict())
         meta = {
             "env_steps": self.stats.env_steps,
             "episodes": self.stats.episodes,
             "iteration": self.stats.iteration,
             "config": json.loads(self.run.model_dump_json()),
+            "stability": asdict(self.stability),
             "created": time.time(),  # fixed here, so that a retried save writes the very same metadata
+            **extra,
         }
         return self.store_outage.call(
             f"save checkpoint {self.version}",
@@ -249,6 +350,8 @@ class Trainer:
                 self.train()
             if time.monotonic() - last_status > 1.0:
                 self.redis_outage.call("write the status", self.housekeeping)
+                if self.hp.collapse_guard:
+                    self.guard()
                 last_status = time.monotonic()
             if self._done():
                 break
@@ -284,6 +387,9 @@ class Trainer:
             return 0
         lag = self.version - seg.policy_version
         self.stats.lag.append(lag)
+        if seg.policy_version < self.stability.floor:  # acted by a policy a rollback abandoned
+            self.stats.drop("rolled_back")
+            return 0
         if lag > self.run.max_policy_lag or lag < 0:
             self.stats.drop("stale" if lag > 0 else "future_version")
             return 0
@@ -308,6 +414,8 @@ class Trainer:
         episodes = [e for s in self.buffer for e in s.episodes]
         lags = [self.version - s.policy_version for s in self.buffer]
         self.buffer = []
+        self._set_lr(self.learning_rate())
+        beta_entropy = self.entropy_coef()
         self.model.train()
         result = update(
             self.model,
@@ -316,12 +424,14 @@ class Trainer:
             epochs=self.hp.num_epochs,
             minibatch_size=self.hp.batch_size,
             clip_eps=self.hp.clip_epsilon,
-            beta_entropy=self.hp.beta_entropy,
+            beta_entropy=beta_entropy,
             value_coef=self.hp.value_loss_coef,
             loss_type=self.hp.value_loss_kind,
             max_grad_norm=self.hp.max_grad_norm,
             generator=self.generator,
+            target_kl=self.hp.target_kl,
         )
+        result["beta_entropy"] = beta_entropy
         self.model.eval()
         self.version += 1
         self.stats.iteration += 1
@@ -333,6 +443,110 @@ class Trainer:
         self._record(result, episodes, lags, batch, time.monotonic() - t0)
         log.info("iteration %d: version %d, %s", self.stats.iteration, self.version, result)
         return result
+
+    def learning_rate(self) -> float:
+        """The learning rate of the next policy update: the schedule's value (``lr`` itself when constant, as in
+        DeepRacer) times the rollbacks' ``lr_scale``."""
+        hp = self.hp
+        base = scheduled(hp.lr_schedule, hp.lr, hp.lr_final_fraction, self.stats.iteration, hp.schedule_updates)
+        return base * self.stability.lr_scale
+
+    def entropy_coef(self) -> float:
+        """The entropy coefficient of the next policy update: ``beta_entropy`` itself when constant (DeepRacer)."""
+        hp = self.hp
+        return scheduled(
+            hp.entropy_schedule, hp.beta_entropy, hp.entropy_final_fraction, self.stats.iteration, hp.schedule_updates
+        )
+
+    def _set_lr(self, lr: float) -> None:
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+
+    # --- the collapse guard -------------------------------------------------------------------
+    def guard(self) -> bool:
+        """Read the evaluator's new summaries; roll back when they have collapsed (see ``CollapseWatch``).
+
+        The evaluator stores each evaluation (and moves ``best``) before it pushes the summary to Redis, so the
+        best read here already accounts for every summary read. Returns True if it rolled the run back.
+        """
+        fresh = self.redis_outage.call("read the evaluations", self._new_evaluations)
+        if not fresh:
+            return False
+        best = self.store_outage.call("read the best evaluation", self._best_evaluation)
+        for evaluation in fresh:
+            if self.watch.observe(evaluation, best) and best is not None:
+                return self._roll_back(best, list(self.watch.streak))
+        return False
+
+    def _new_evaluations(self) -> list[dict]:
+        """The evaluator's summaries (``trainer.evaluator._report``) the watch has not looked at yet."""
+        # A malformed entry (not the evaluator's) is skipped: it says nothing about a checkpoint.
+        raws = self.redis.lrange(self.keys.evaluations, -EVALUATION_WINDOW, -1)
+        return self.watch.fresh([s for s in map(_evaluation_summary, raws) if s is not None])
+
+    def _best_evaluation(self) -> tuple[int, float] | None:
+        """(version, completion rate) of the ``best`` checkpoint's evaluation, or None while there is none."""
+        pointer = self.runs.pointer(self.run.run_id, "best")
+        if pointer is None:
+            return None
+        version = int(pointer["version"])
+        try:
+            record = json.loads(self.runs.read_file(self.run.run_id, evaluation_key(version)))
+            return version, float(record["completion_rate"])
+        except (StoreKeyError, KeyError, TypeError, ValueError):
+            return None
+
+    def _roll_back(self, best: tuple[int, float], collapsed: list[dict]) -> bool:
+        """Go back to the best checkpoint's weights and optimizer at a lower learning rate, as a new version.
+
+        The buffer and later segments of older versions are dropped (``rolled_back``): they were acted by the
+        collapsed policies. Returns False if the best checkpoint could not be read (counted as a collapse only).
+        """
+        best_version, best_completion = best
+        self.stability.collapses += 1
+        try:
+            payload, _ = self.store_outage.call(
+                f"read best checkpoint {best_version}", lambda: self.runs.load_checkpoint(self.run.run_id, best_version)
+            )
+        except StoreKeyError as exc:
+            log.warning("collapse guard: collapse %d detected but not rolled back: %s", self.stability.collapses, exc)
+            self.watch.restart(self.watch.floor)
+            return False
+        old_lr = self.learning_rate()
+        self._load_state(payload)
+        self.stability.lr_scale *= self.hp.collapse_lr_factor
+        self.stability.rollbacks += 1
+        for _ in self.buffer:
+            self.stats.drop("rolled_back")
+        self.buffer = []
+        self.version += 1
+        self.stability.floor = self.version
+        self.watch.restart(self.version)
+        self._set_lr(self.learning_rate())  # the best's optimizer state carries the best's learning rate
+        self._checkpoint(rolled_back_to=best_version)
+        self.redis_outage.call("publish the policy", self._publish)
+        self.store_outage.call(
+            "prune checkpoints", lambda: self.runs.prune_checkpoints(self.run.run_id, self.run.keep_checkpoints)
+        )
+        log.warning(
+            "collapse guard: v%s completed %s of their evaluation trials against best v%d's %.2f "
+            "(collapsed at <= %.2f); rolled back to v%d's weights and optimizer as v%d, learning rate %.3g -> %.3g "
+            "(collapses %d, rollbacks %d)",
+            ", v".join(str(e["version"]) for e in collapsed),
+            ", ".join(f"{e['completion_rate']:.2f}" for e in collapsed),
+            best_version,
+            best_completion,
+            best_completion * (1.0 - self.hp.collapse_drop),
+            best_version,
+            self.version,
+            old_lr,
+            self.learning_rate(),
+            self.stability.collapses,
+            self.stability.rollbacks,
+        )
+        if self.tb is not None:
+            self.tb.add_scalar("trainer/rollbacks", self.stability.rollbacks, self.stats.env_steps)
+        return True
 
     def _record(
         self, losses: dict, episodes: list[EpisodeSummary], lags: list[int], batch: PPOBatch, train_s: float
@@ -356,6 +570,8 @@ class Trainer:
             "mean_policy_lag": statistics.fmean(lags) if lags else 0.0,
             "train_s": train_s,
             "dropped": dict(self.stats.dropped),
+            "collapses": self.stability.collapses,
+            "rollbacks": self.stability.rollbacks,
             "time": time.time(),
             **{k: float(v) for k, v in losses.items()},
         }
@@ -375,6 +591,8 @@ class Trainer:
         self.tb.add_scalar("trainer/policy_lag", row["mean_policy_lag"], step)
         self.tb.add_scalar("trainer/steps_per_s", row["steps_per_s"], step)
         self.tb.add_scalar("trainer/mean_progress", row["mean_progress"], step)
+        self.tb.add_scalar("trainer/collapses", row["collapses"], step)
+        self.tb.add_scalar("trainer/rollbacks", row["rollbacks"], step)
         for e in episodes:
             self.tb.add_scalar("episode/reward", e.reward, step)
             self.tb.add_scalar("episode/progress", e.progress, step)
@@ -409,6 +627,8 @@ class Trainer:
             "silent_workers": sorted(self.silent),
             "segments_by_worker": dict(self.stats.by_worker),
             "outages": {"redis": self.redis_outage.outages, "store": self.store_outage.outages},
+            "collapses": self.stability.collapses,
+            "rollbacks": self.stability.rollbacks,
             "precision": self.precision,
             "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             "time": time.time(),
@@ -450,6 +670,17 @@ class Trainer:
             if self.silent.pop(wid, None) is not None:
                 log.warning("worker %s is sending heartbeats again", wid)
         self.live.update(alive)
+
+
+def _evaluation_summary(raw: bytes | str) -> dict | None:
+    """An evaluator summary with an int ``version`` and a float ``completion_rate``, or None if it is malformed."""
+    try:
+        summary = json.loads(raw)
+        summary["version"] = int(summary["version"])
+        summary["completion_rate"] = float(summary["completion_rate"])
+    except (TypeError, KeyError, ValueError):
+        return None
+    return summary
 
 
 def resolve_precision(precision: str) -> Precision:

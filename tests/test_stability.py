@@ -1,0 +1,189 @@
+"""The collapse guard (trainer.process): its rule by hand, and a rollback against a real Redis and store.
+
+The evaluations are fabricated but travel the evaluator's own way: ``save_evaluation`` stores the record and moves
+``best``, then ``_report`` pushes the summary to the Redis list, as ``run_evaluator`` does after each checkpoint.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import pytest
+import redis
+import torch
+
+from common.keys import Keys
+from common.policy import checkpoint_from_bytes
+from common.protocol import PolicyVersion
+from model_store import RunStore, open_store
+from tests.test_training_loop import fill, start
+from trainer.evaluator import _SUMMARY_KEYS, _report, save_evaluation, score
+from trainer.process import METRICS_FILE, CollapseWatch, Stability, Trainer, TrainerOptions, is_collapsed
+
+# --- the rule ------------------------------------------------------------------------------------------------
+
+
+def test_is_collapsed_by_hand() -> None:
+    # best 0.75, drop 0.5: collapsed at or below 0.375
+    assert is_collapsed(0.0, 0.75, min_best=0.25, drop=0.5)
+    assert is_collapsed(0.375, 0.75, min_best=0.25, drop=0.5)
+    assert not is_collapsed(0.4, 0.75, min_best=0.25, drop=0.5)
+    # a best below min_best has nothing to collapse from: 1 lap in 12 against none is noise
+    assert not is_collapsed(0.0, 1 / 12, min_best=0.25, drop=0.5)
+    # drop 1: only a completion of 0 is a collapse
+    assert is_collapsed(0.0, 0.5, min_best=0.25, drop=1.0) and not is_collapsed(0.01, 0.5, min_best=0.25, drop=1.0)
+
+
+def _e(version: int, completion: float) -> dict:
+    return {"version": version, "completion_rate": completion}
+
+
+def test_watch_needs_patience_consecutive_collapses_newer_than_the_best() -> None:
+    watch = CollapseWatch(min_best=0.25, drop=0.5, patience=2)
+    best = (5, 0.75)
+    assert not watch.observe(_e(5, 0.75), best)  # the best itself
+    assert not watch.observe(_e(6, 0.0), best)  # one: maybe noise
+    assert not watch.observe(_e(7, 0.5), best)  # a good one ends the streak
+    assert not watch.observe(_e(8, 0.1), best)
+    assert watch.observe(_e(9, 0.0), best)  # two in a row
+    assert [e["version"] for e in watch.streak] == [8, 9]
+    assert not watch.observe(_e(9, 0.0), best)  # looked at already
+
+
+def test_watch_ignores_versions_before_the_floor_and_older_than_the_best() -> None:
+    watch = CollapseWatch(min_best=0.25, drop=0.5, patience=1)
+    assert not watch.observe(_e(3, 0.0), (4, 1.0))  # older than the best: not a collapse of the best
+    assert not watch.observe(_e(3, 0.0), None)  # no best yet
+    watch.restart(floor=10)
+    assert watch.fresh([_e(12, 0.0), _e(9, 0.0), _e(11, 0.0)]) == [_e(11, 0.0), _e(12, 0.0)]
+    assert not watch.observe(_e(9, 0.0), (4, 1.0))  # a policy the rollback abandoned
+    assert watch.observe(_e(10, 0.0), (4, 1.0))
+
+
+def test_stability_state_from_checkpoint_metadata() -> None:
+    assert Stability.from_meta({}) == Stability()  # a checkpoint from before the guard
+    saved = {"lr_scale": 0.25, "collapses": 3, "rollbacks": 2, "floor": 17}
+    assert Stability.from_meta({"stability": saved}) == Stability(0.25, 3, 2, 17)
+
+
+# --- the trainer, with a real Redis and store ----------------------------------------------------------------
+
+HP = {
+    "batch_size": 32,
+    "num_epochs": 1,
+    "num_episodes_between_training": 2,
+    "discount_factor": 0.99,
+    "lr": 0.001,
+    "lr_schedule": "linear",
+    "lr_final_fraction": 0.5,
+    "beta_entropy": 0.01,
+    "entropy_schedule": "linear",
+    "entropy_final_fraction": 0.0,
+    "schedule_updates": 4,
+    "collapse_guard": True,
+    "collapse_drop": 0.5,
+    "collapse_lr_factor": 0.5,
+}
+
+
+def evaluated(runs: RunStore, r: redis.Redis, run_id: str, version: int, completion: float) -> None:
+    """A robust evaluation of ``version`` completing ``completion`` of 12 trials, stored and reported as the
+    evaluator does (``run_evaluator`` after ``evaluate_checkpoint``)."""
+    laps = [20.0] * round(12 * completion)
+    progress = 100.0 * completion
+    record = {
+        "run_id": run_id,
+        "version": version,
+        "env_steps": 0,
+        "completion_rate": completion,
+        "mean_progress": progress,
+        "best_lap_s": min(laps, default=None),
+        "off_track": 12 - len(laps),
+        "score": score(completion, progress, laps),
+        "trials": [],
+    }
+    moved = save_evaluation(runs, record)
+    _report(r, Keys(run_id), json.dumps({**{k: record[k] for k in _SUMMARY_KEYS}, "best": moved}))
+
+
+def _same(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_a_collapse_rolls_back_to_the_best_weights_and_optimizer_at_a_lower_lr(
+    redis_url, run_id, tmp_path, caplog
+) -> None:
+    hp = tmp_path / "hyperparameters.json"
+    hp.write_text(json.dumps(HP))
+    store = str(tmp_path / "store")
+    trainer, worker = start(run_id, redis_url, store, str(hp))
+    r, runs = redis.Redis.from_url(redis_url), RunStore(open_store(store))
+    for _ in range(3):  # versions 1, 2, 3
+        fill(trainer, worker)
+        trainer.train()
+        worker.poll_policy()
+    assert worker.policy_version == 3
+
+    # The schedules, by hand: lr 0.001 → 0.0005 and beta 0.01 → 0 over 4 updates (updates k = 0, 1, 2).
+    rows = [json.loads(line) for line in runs.read_file(run_id, METRICS_FILE).decode().splitlines()]
+    assert [row["learning_rate"] for row in rows] == pytest.approx([0.001, 0.000875, 0.00075])
+    assert [row["beta_entropy"] for row in rows] == pytest.approx([0.01, 0.0075, 0.005])
+    assert [(row["collapses"], row["rollbacks"], row["epochs_run"]) for row in rows] == [(0, 0, 1)] * 3
+
+    evaluated(runs, r, run_id, 1, 0.75)  # the best
+    evaluated(runs, r, run_id, 2, 0.0)
+    assert runs.pointer(run_id, "best")["version"] == 1
+    assert trainer.guard() is False and trainer.version == 3  # one collapsed evaluation could be noise
+    evaluated(runs, r, run_id, 3, 1 / 12)
+
+    # Switched off (DeepRacer), the loop never looks.
+    trainer.hp.collapse_guard = False
+    trainer.opts.time_limit_s = 1.2
+    trainer.run_forever()
+    assert trainer.version == 3 and trainer.stability == Stability()
+
+    # Switched on, the loop rolls back: v4 is v1's weights and optimizer state.
+    trainer.hp.collapse_guard = True
+    with caplog.at_level(logging.WARNING, logger="racer.trainer"):
+        trainer.run_forever()
+    assert trainer.version == 4
+    assert trainer.stability == Stability(lr_scale=0.5, collapses=1, rollbacks=1, floor=4)
+    best_model, best_optim = checkpoint_from_bytes(runs.load_checkpoint(run_id, 1)[0])
+    new_model, new_optim = checkpoint_from_bytes(runs.load_checkpoint(run_id, 4)[0])
+    assert _same(new_model, best_model) and _same(trainer.model.state_dict(), best_model)
+    assert _same(trainer.optimizer.state_dict()["state"][0], best_optim["state"][0])
+    # lr at update k = 3: 0.001 * (1 - 0.5 * 3/4) = 0.000625, halved by the rollback
+    assert trainer.optimizer.param_groups[0]["lr"] == pytest.approx(0.0003125)
+    assert new_optim["param_groups"][0]["lr"] == pytest.approx(0.0003125)
+    meta = runs.checkpoint_meta(run_id, 4)
+    assert meta["rolled_back_to"] == 1 and meta["stability"]["floor"] == 4
+    assert PolicyVersion.from_json(r.get(Keys(run_id).policy)).version == 4
+    lines = [rec.getMessage() for rec in caplog.records if "collapse guard" in rec.getMessage()]
+    assert lines == [
+        "collapse guard: v2, v3 completed 0.00, 0.08 of their evaluation trials against best v1's 0.75 "
+        "(collapsed at <= 0.38); rolled back to v1's weights and optimizer as v4, learning rate 0.000625 -> 0.000313 "
+        "(collapses 1, rollbacks 1)"
+    ]
+
+    # A segment acted by the abandoned v3 is dropped; the worker switches to v4 = v1's weights.
+    worker.push(worker.collect())
+    assert trainer.read(block_ms=500) == 0 and trainer.stats.dropped.get("rolled_back") == 1
+    assert worker.poll_policy() and worker.policy_version == 4
+    assert _same(worker.model.state_dict(), best_model)
+
+    # Numbering goes on upward, and the metrics count the rollback.
+    fill(trainer, worker)
+    trainer.train()
+    assert trainer.version == 5
+    row = json.loads(runs.read_file(run_id, METRICS_FILE).decode().splitlines()[-1])
+    assert (row["policy_version"], row["collapses"], row["rollbacks"]) == (5, 1, 1)
+    assert row["learning_rate"] == pytest.approx(0.0003125)
+    worker.close()
+
+    # A resumed trainer keeps the lower learning rate, the counters and the floor.
+    again = Trainer(trainer.run, TrainerOptions(redis_url, store, resume=True, tensorboard=False))
+    again.start()
+    assert again.stability == Stability(lr_scale=0.5, collapses=1, rollbacks=1, floor=4)
+    assert again.learning_rate() == pytest.approx(0.001 * (1 - 0.5) * 0.5)  # k = 4: the schedule's end, halved
+    assert again.guard() is False  # the evaluations of v2 and v3 are below the floor
