@@ -195,3 +195,19 @@ def load_calibration(path: str | Path) -> CarCalibration:
 def save_calibration(calibration: CarCalibration, path: str | Path) -> None:
     """Write a calibration file (JSON, indented)."""
     Path(path).write_text(calibration.model_dump_json(indent=2, exclude_none=True) + "\n")
+
+
+CAR_PRESETS: dict[str, CarCalibration] = {"default": CarCalibration()}
+"""Cars known by name (``--car NAME``): ``default`` is the car as modelled, with no effects."""
+
+
+def load_car(spec: str | Path) -> CarCalibration:
+    """``--car NAME|FILE``: a preset's name, or a car.json written by ``racer calibrate``; a one-line
+    CalibrationError naming the value otherwise."""
+    name = str(spec)
+    if name in CAR_PRESETS:
+        return CAR_PRESETS[name]
+    path = Path(name)
+    if path.suffix == ".json" or path.exists():
+        return load_calibration(path)
+    raise CalibrationError(f"car {name!r} is neither a preset ({', '.join(CAR_PRESETS)}) nor a car.json file")

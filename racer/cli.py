@@ -544,6 +544,48 @@ def calibrate_cmd(
     write_json(report, json_out)
 
 
+@app.command("limit")
+def limit_cmd(
+    track: Annotated[str, typer.Argument(help="Track name or .npy path (a loop).")],
+    car: Annotated[str, typer.Option(help="Car: a preset name (default) or a car.json from racer calibrate.")] = (
+        "default"
+    ),
+    action_space: Annotated[
+        Path | None, typer.Option("--action-space", help="model_metadata.json: its top speed caps the car's.")
+    ] = None,
+    margin: Annotated[
+        float, typer.Option(min=0.0, max=0.08, help="Metres the car's centre keeps inside DeepRacer's off-track line.")
+    ] = 0.05,
+    png: Annotated[Path | None, typer.Option("--png", help="Write the line coloured by speed over the track.")] = None,
+    json_out: Annotated[str | None, typer.Option("--json", help="Write the report as JSON to F (- = stdout).")] = None,
+) -> None:
+    """The minimum lap time of a car on a track: its racing line and speed profile, and a lap driven on it."""
+    from racer.limit import compute_limit, plot_limit, public
+
+    try:
+        report = compute_limit(track, car, action_space, margin)
+    except (*_user_errors(), ValueError) as exc:
+        fail(str(exc).splitlines()[0])
+    if png:
+        plot_limit(report, png)
+    if json_out != "-":
+        driven = report["driven_lap_time_s"]
+        ratio = report["driven_over_limit"]
+        console.print(
+            f"{track}, car {car}: limit {report['lap_time_s']:.2f} s from a standing start "
+            f"(flying lap {report['flying_lap_time_s']:.2f} s) on a {report['line_length_m']:.2f} m line, "
+            f"top speed {report['max_speed_mps']:.2f} m/s",
+            highlight=False,
+        )
+        console.print(
+            "driven by pure pursuit in the env: "
+            + (f"{driven:.2f} s ({100 * (ratio - 1):+.1f} % of the limit)" if driven else report["driven_status"])
+            + f"; {report['seconds']['total']:.1f} s in all",
+            highlight=False,
+        )
+    write_json(public(report), json_out)
+
+
 @app.command("plot")
 def plot_cmd(
     run_id: Annotated[str, typer.Argument(help="Run id.")],

@@ -1,0 +1,243 @@
+"""The fastest line round a track for a car with measured limits, and its quasi-steady speed profile.
+
+The line is the centre line moved sideways by an offset at each of N points 0.1 m apart, inside the corridor where
+the car is still on the track by DeepRacer's rule: off track only when all four wheels are off, so the car's centre
+may pass a border by half its wheel track less a safety margin. The offsets minimise a lap-time estimate,
+``sum(ds / v_curve(kappa))``, where ``v_curve`` is the highest speed at which the car holds the line's curvature
+(``CarLimits.speed_for_curvature``). They are a periodic spline through knots 0.4 m apart, with a steep penalty
+for leaving the corridor; torch gives the gradient and scipy's L-BFGS-B does the search. The first point's offset
+is 0: a lap starts where the env starts the car, on the centre line at waypoint 0.
+
+The speed profile then applies the acceleration and braking limits with a forward and a backward pass (the full
+limits in a curve too: see ``_grip_left``). The lap time is a standing start from rest, as racer's evaluator times
+a lap; the flying lap (periodic profile) is reported beside it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.optimize import minimize
+
+from sim.car_limits import CarLimits
+from sim.physics import TRACK_WIDTH_M
+from sim.track import Track
+
+SPACING_M = 0.1
+"""Distance between the line's points along the centre line, m."""
+DEFAULT_MARGIN_M = 0.05
+"""How far inside DeepRacer's off-track boundary (border + half the wheel track) the car's centre stays, m."""
+KNOT_SPACING_M = 0.4
+"""Distance between the knots of the offsets' spline, m: the shortest wiggle the line may have."""
+CORRIDOR_PENALTY = 1e4
+"""Cost per squared metre of leaving the corridor, s/m² (steep: the optimum stays inside)."""
+
+
+@dataclass(frozen=True)
+class Corridor:
+    """The centre line resampled every ``SPACING_M`` and the offsets the line may take at each point."""
+
+    s: np.ndarray
+    """(N,) arc length along the centre line, m (the loop closes after the last point)."""
+    center: np.ndarray
+    """(N, 2) centre-line points, m."""
+    normal: np.ndarray
+    """(N, 2) unit normals pointing left of the direction of travel."""
+    low: np.ndarray
+    """(N,) most negative (rightward) offset allowed, m."""
+    high: np.ndarray
+    """(N,) most positive (leftward) offset allowed, m."""
+
+
+@dataclass(frozen=True)
+class RacingLine:
+    """A line, its speed profile and its times (all SI)."""
+
+    points: np.ndarray
+    """(N, 2) positions, m; the lap closes back to the first."""
+    offsets: np.ndarray
+    """(N,) offsets from the centre line, m (+ = left)."""
+    ds: np.ndarray
+    """(N,) length from point i to point i + 1 (the last one back to the first), m."""
+    curvature: np.ndarray
+    """(N,) signed curvature at each point, 1/m (+ = turning left)."""
+    speed: np.ndarray
+    """(N + 1,) standing-start speed profile at each point and at the finish (= the first point), m/s."""
+    flying_speed: np.ndarray
+    """(N,) speed profile of a flying lap, m/s."""
+    lap_time: float
+    """Standing-start lap time, s."""
+    flying_lap_time: float
+    """Flying lap time, s."""
+
+    @property
+    def length(self) -> float:
+        """Length of the line, m."""
+        return float(self.ds.sum())
+
+
+def corridor(track: Track, margin: float = DEFAULT_MARGIN_M) -> Corridor:
+    """The resampled centre line of a closed track and the offsets that keep a wheel on the track."""
+    if not track.closed:
+        raise ValueError(f"track {track.name!r} is not a loop: a lap-time limit needs a closed track")
+    s_rows = track.cumulative
+    length = float(s_rows[-1])
+    n = max(int(round(length / SPACING_M)), 20)
+    s = np.linspace(0.0, length, n, endpoint=False)
+    center_spline = CubicSpline(s_rows, track.center, bc_type="periodic")
+    center = center_spline(s)
+    tangent = center_spline(s, 1)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    normal = np.column_stack([-tangent[:, 1], tangent[:, 0]])
+    # Each border's offset along the normal at the waypoint rows, then along s: left and right of travel.
+    row_normal = center_spline(s_rows, 1)
+    row_normal = np.column_stack([-row_normal[:, 1], row_normal[:, 0]]) / np.linalg.norm(row_normal, axis=1)[:, None]
+    inner = np.einsum("ij,ij->i", track.inner - track.center, row_normal)
+    outer = np.einsum("ij,ij->i", track.outer - track.center, row_normal)
+    left = np.interp(s, s_rows, np.maximum(inner, outer))
+    right = np.interp(s, s_rows, -np.minimum(inner, outer))
+    beyond = TRACK_WIDTH_M / 2 - margin  # the centre may pass the border until the last wheel leaves the track
+    return Corridor(s=s, center=center, normal=normal, low=-(right + beyond), high=left + beyond)
+
+
+def _curvature(points: np.ndarray) -> np.ndarray:
+    """Signed Menger curvature of a closed polyline at each point, 1/m."""
+    a = points - np.roll(points, 1, axis=0)
+    b = np.roll(points, -1, axis=0) - points
+    cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    denom = np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1) * np.linalg.norm(a + b, axis=1)
+    return 2.0 * cross / np.maximum(denom, 1e-12)
+
+
+def _spline_basis(s: np.ndarray, length: float, knot_spacing: float) -> np.ndarray:
+    """(N, M) matrix B: offsets at the N points = B @ (offsets at M knots), a periodic cubic spline."""
+    m = max(int(round(length / knot_spacing)), 8)
+    knots = np.linspace(0.0, length, m + 1)
+    basis = np.empty((len(s), m))
+    for j in range(m):
+        y = np.zeros(m + 1)
+        y[j] = 1.0
+        if j == 0:
+            y[m] = 1.0  # periodic: the last knot is the first
+        basis[:, j] = CubicSpline(knots, y, bc_type="periodic")(s)
+    return basis
+
+
+def optimise_line(cor: Corridor, limits: CarLimits, max_iter: int = 2000) -> np.ndarray:
+    """Offsets (N,) minimising the lap-time estimate inside the corridor; see the module doc.
+
+    The offsets are a periodic cubic spline through knots ``KNOT_SPACING_M`` apart (a line a car can follow has
+    no shorter wiggles, and curvature computed from it is free of point-to-point noise); leaving the corridor
+    costs a steep quadratic penalty, and the final offsets are clipped into it."""
+    import torch
+
+    length = float(cor.s[-1] + (cor.s[1] - cor.s[0]))
+    basis = _spline_basis(cor.s, length, KNOT_SPACING_M)
+    b_t = torch.tensor(basis)
+    center = torch.tensor(cor.center, dtype=torch.float64)
+    normal = torch.tensor(cor.normal, dtype=torch.float64)
+    low, high = torch.tensor(cor.low), torch.tensor(cor.high)
+    kappa_table, speed_table = _curve_speed_table(limits)
+    kt, vt = torch.tensor(kappa_table), torch.tensor(speed_table)
+
+    def objective(x: np.ndarray) -> tuple[float, np.ndarray]:
+        knots = torch.tensor(x, dtype=torch.float64, requires_grad=True)
+        alpha = b_t @ knots
+        q = center + alpha[:, None] * normal
+        a = q - torch.roll(q, 1, 0)
+        b = torch.roll(q, -1, 0) - q
+        cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+        na, nb, nab = a.norm(dim=1), b.norm(dim=1), (a + b).norm(dim=1)
+        kappa = 2.0 * cross.abs() / (na * nb * nab).clamp_min(1e-12)
+        v = _interp_speed(kappa, kt, vt)
+        v_seg = 0.5 * (v + torch.roll(v, -1, 0))
+        outside = torch.relu(alpha - high) + torch.relu(low - alpha)
+        cost = (nb / v_seg).sum() + CORRIDOR_PENALTY * (outside**2).sum()
+        cost.backward()
+        return float(cost.detach()), knots.grad.numpy().copy()
+
+    bounds = [(None, None)] * basis.shape[1]
+    bounds[0] = (0.0, 0.0)  # the lap starts where the env puts the car: on the centre line
+    options = {"maxiter": max_iter, "ftol": 1e-12, "gtol": 1e-9}
+    result = minimize(objective, np.zeros(basis.shape[1]), jac=True, method="L-BFGS-B", bounds=bounds, options=options)
+    return np.clip(basis @ result.x, cor.low, cor.high)
+
+
+def _curve_speed_table(limits: CarLimits) -> tuple[np.ndarray, np.ndarray]:
+    """(curvature ascending, speed) knots of ``v_curve``, with curvature strictly increasing."""
+    kappa = np.asarray(limits.max_curvature, dtype=np.float64)[::-1]
+    speed = np.asarray(limits.speeds, dtype=np.float64)[::-1]
+    kappa = kappa + 1e-9 * np.arange(len(kappa))  # ties (flat stretches of the table) made strictly increasing
+    return kappa, np.minimum(speed, limits.top_speed)
+
+
+def _interp_speed(kappa, kt, vt):  # noqa: ANN001, ANN202 - torch tensors in, tensor out
+    """Piecewise-linear v(kappa) on the knots; top speed below the first knot; beyond the last, the speed falls
+    with the square of the excess so that the optimiser is pushed back inside the car's curvature limit."""
+    import torch
+
+    idx = torch.searchsorted(kt, kappa.detach()).clamp(1, len(kt) - 1)
+    k0, k1, v0, v1 = kt[idx - 1], kt[idx], vt[idx - 1], vt[idx]
+    inside = v0 + (v1 - v0) * (kappa - k0) / (k1 - k0)
+    below = torch.full_like(kappa, float(vt[0]))
+    beyond = vt[-1] * (kt[-1] / kappa.clamp_min(1e-9)) ** 2
+    return torch.where(kappa <= kt[0], below, torch.where(kappa >= kt[-1], beyond, inside))
+
+
+def speed_profile(
+    ds: np.ndarray, curvature: np.ndarray, limits: CarLimits, v_start: float | None = 0.0
+) -> tuple[np.ndarray, float]:
+    """Quasi-steady speeds (N + 1,) along a closed line from point 0 back to it, and the lap time.
+
+    ``v_start`` = 0: a standing start; None: a flying lap (the profile repeats, found by going round twice)."""
+    v_lim = limits.speed_for_curvature(curvature)
+    v_lim = np.append(v_lim, v_lim[0])
+    k = np.append(np.abs(curvature), abs(curvature[0]))
+    n = len(ds)
+    if v_start is None:
+        v = _passes(np.tile(ds, 3), np.tile(v_lim[:-1], 3), np.tile(k[:-1], 3), limits, v_lim[0])
+        v = v[n : 2 * n + 1]
+    else:
+        v = _passes(ds, v_lim, k, limits, min(v_start, v_lim[0]))
+    times = 2.0 * ds / np.maximum(v[:-1] + v[1:], 1e-9)
+    return v, float(times.sum())
+
+
+def _passes(ds: np.ndarray, v_lim: np.ndarray, k: np.ndarray, limits: CarLimits, v0: float) -> np.ndarray:
+    """Forward (acceleration) and backward (braking) passes on the friction ellipse; len(v_lim) = len(ds) + 1."""
+    if len(v_lim) == len(ds):
+        v_lim, k = np.append(v_lim, v_lim[-1]), np.append(k, k[-1])
+    v = v_lim.astype(np.float64).copy()
+    v[0] = v0
+    for i in range(len(ds)):
+        grip = _grip_left(v[i], k[i], limits)
+        v[i + 1] = min(v[i + 1], math.sqrt(v[i] ** 2 + 2.0 * float(limits.accel_at(v[i])) * grip * ds[i]))
+    for i in range(len(ds) - 1, -1, -1):
+        grip = _grip_left(v[i + 1], k[i + 1], limits)
+        v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2.0 * float(limits.brake_at(v[i + 1])) * grip * ds[i]))
+    return v
+
+
+def _grip_left(v: float, kappa: float, limits: CarLimits) -> float:
+    """Fraction of the longitudinal limit left while holding curvature ``kappa`` at speed ``v``.
+
+    1: this car accelerates and brakes in a curve as on a straight. A friction ellipse (sqrt(1 - (kappa/kmax)²))
+    was tried and measured wrong here: its 6.83 s limit on reinvent_base was beaten by the controller driving the
+    profile without it (6.53 s), and a limit must not be beaten. The wheel servos' force limit, not the tyres'
+    grip, bounds the acceleration (5.4 m/s² against ~7 m/s² of lateral grip)."""
+    return 1.0
+
+
+def racing_line(track: Track, limits: CarLimits, margin: float = DEFAULT_MARGIN_M) -> RacingLine:
+    """The optimised line round ``track`` (in its file's direction) with its speed profiles and lap times."""
+    cor = corridor(track, margin)
+    offsets = optimise_line(cor, limits)
+    points = cor.center + offsets[:, None] * cor.normal
+    ds = np.linalg.norm(np.roll(points, -1, axis=0) - points, axis=1)
+    curvature = _curvature(points)
+    speed, lap = speed_profile(ds, curvature, limits, v_start=0.0)
+    flying, flying_lap = speed_profile(ds, curvature, limits, v_start=None)
+    return RacingLine(points, offsets, ds, curvature, speed, flying[:-1], lap, flying_lap)

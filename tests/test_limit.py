@@ -1,0 +1,139 @@
+"""racer limit: the car's measured limits, the speed profile against hand-computed times, the racing line, and the
+driven lap in the real env."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.car_calibration import CalibrationError, load_car
+from sim.car_limits import CarLimits, measure_limits
+from sim.physics import WHEELBASE_M
+from sim.raceline import _curvature, corridor, racing_line, speed_profile
+from sim.track import load_track
+
+
+@pytest.fixture(scope="module")
+def limits() -> CarLimits:
+    return measure_limits()
+
+
+def flat_limits(top: float = 3.0, accel: float = 2.0, brake: float = 4.0, kmax: float = 10.0) -> CarLimits:
+    """Hand-made limits: constant acceleration and braking, one curvature limit at every speed."""
+    speeds = [0.5, 1.0, 2.0, top]
+    return CarLimits(
+        top_speed=top,
+        speed_per_command=1.0,
+        speeds=speeds,
+        accel=[accel] * 4,
+        brake=[brake] * 4,
+        max_curvature=[kmax] * 4,
+        max_lateral_accel=[v * v * kmax for v in speeds],
+        steering=[10.0, 20.0, 30.0],
+        curvature_by_steering=[[1.0, 2.0, 3.0]] * 4,
+        min_turn_radius=0.3,
+        max_command_speed=top,
+    )
+
+
+def test_measured_limits_are_those_of_a_small_car_with_a_4_mps_top_speed(limits: CarLimits) -> None:
+    assert 3.8 < limits.top_speed <= 4.0 and 0.95 < limits.speed_per_command <= 1.0
+    assert all(a > 3.0 for a in limits.accel[:-1]) and limits.accel[-1] == 0.0  # no acceleration at top speed
+    assert all(b > 3.0 for b in limits.brake[1:])
+    k = np.array(limits.max_curvature)
+    assert np.all(np.diff(k) <= 0) and k[-1] > 0  # a faster car holds no tighter curve
+    # Full lock at a walking pace: close to the kinematic radius L / tan(30°), a little wider (tyres slip).
+    assert WHEELBASE_M / math.tan(math.radians(30)) < limits.min_turn_radius < 0.5
+    assert limits.max_lateral_accel == pytest.approx([v * v * c for v, c in zip(limits.speeds, k, strict=True)])
+
+
+def test_speed_for_curvature_inverts_the_table(limits: CarLimits) -> None:
+    for v, k in zip(limits.speeds[1:-1], limits.max_curvature[1:-1], strict=True):
+        assert float(limits.speed_for_curvature(k)) >= v - 1e-6  # at its own limit the car may go that fast
+    assert float(limits.speed_for_curvature(0.0)) == pytest.approx(limits.top_speed)
+
+
+def test_standing_start_profile_matches_hand_computed_time() -> None:
+    # A 30 m straight-ish loop (curvature 0): accelerate at 2 m/s² to 3 m/s (2.25 m, 1.5 s), cruise the rest.
+    lim = flat_limits()
+    ds = np.full(300, 0.1)
+    v, lap = speed_profile(ds, np.zeros(300), lim, v_start=0.0)
+    assert v[0] == 0.0 and v[-1] == pytest.approx(3.0)
+    assert lap == pytest.approx(1.5 + (30.0 - 2.25) / 3.0, rel=2e-3)
+
+
+def test_braking_before_a_curve_matches_hand_computed_speeds() -> None:
+    # Curvature 10/1 m at one point limits the speed there to the table's lowest, 0.5 m/s; braking at 4 m/s² from
+    # 3 m/s needs (9 - 0.25) / 8 = 1.09 m before it.
+    lim = flat_limits(kmax=1.0)
+    ds = np.full(300, 0.1)
+    kappa = np.zeros(300)
+    kappa[200] = 10.0
+    v, _ = speed_profile(ds, kappa, lim, v_start=0.0)
+    assert v[200] == pytest.approx(0.5)
+    assert v[190] == pytest.approx(math.sqrt(0.25 + 2 * 4.0 * 1.0), rel=1e-6)  # 1 m before it
+    assert v[180] == pytest.approx(3.0)  # 2 m before: still at top speed
+
+
+def test_the_racing_line_stays_in_the_corridor_and_beats_the_centre_line(limits: CarLimits) -> None:
+    track = load_track("reinvent_base")
+    line = racing_line(track, limits)
+    cor = corridor(track)
+    assert line.offsets[0] == 0.0  # starts where the env puts the car
+    assert np.all(line.offsets >= cor.low - 1e-9) and np.all(line.offsets <= cor.high + 1e-9)
+    ds = np.linalg.norm(np.roll(cor.center, -1, axis=0) - cor.center, axis=1)
+    _, centre_lap = speed_profile(ds, _curvature(cor.center), limits)
+    assert line.lap_time < 0.95 * centre_lap
+    assert line.flying_lap_time < line.lap_time  # no standing start
+    assert line.length < track.length  # it cuts the corners
+
+
+def test_racer_limit_drives_its_limit_within_5_percent(tmp_path: Path) -> None:
+    out, png = tmp_path / "limit.json", tmp_path / "limit.png"
+    done = subprocess.run(
+        [sys.executable, "-m", "racer", "limit", "reinvent_base", "--json", str(out), "--png", str(png)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    report = json.loads(out.read_text())
+    for key in ("lap_time_s", "driven_lap_time_s", "line_length_m", "car_limits", "flying_lap_time_s"):
+        assert key in report
+    assert report["driven_status"] == "lap_complete"
+    assert 1.0 <= report["driven_lap_time_s"] / report["lap_time_s"] <= 1.05
+    assert 15.0 < report["line_length_m"] < 17.71  # shorter than the centre line
+    assert {"speeds", "accel", "brake", "max_curvature", "top_speed"} <= set(report["car_limits"])
+    assert report["seconds"]["total"] < 30.0
+    assert png.stat().st_size > 10_000
+    assert "limit" in done.stdout and "driven by pure pursuit" in done.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "fragment"),
+    [
+        (["Straight_track"], "not a loop"),
+        (["reinvent_base", "--car", "no-such-car"], "car 'no-such-car' is neither a preset"),
+        (["nowhere"], "unknown track 'nowhere'"),
+    ],
+)
+def test_racer_limit_refuses_bad_input_in_one_line(args: list[str], fragment: str) -> None:
+    done = subprocess.run([sys.executable, "-m", "racer", "limit", *args], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0], done.stderr
+
+
+def test_car_presets_and_files(tmp_path: Path) -> None:
+    assert load_car("default").is_identity
+    path = tmp_path / "car.json"
+    path.write_text(json.dumps({"effects": [{"name": "tyre_friction", "params": {"mu": 0.5}}]}))
+    assert load_car(str(path)).value("tyre_friction", "mu") == 0.5
+    with pytest.raises(CalibrationError, match="neither a preset"):
+        load_car("fast-car")
