@@ -126,7 +126,7 @@ def _spline_basis(s: np.ndarray, length: float, knot_spacing: float) -> np.ndarr
     return basis
 
 
-def optimise_line(cor: Corridor, limits: CarLimits, max_iter: int = 2000) -> np.ndarray:
+def optimise_line(cor: Corridor, limits: CarLimits, max_iter: int = 600) -> np.ndarray:
     """Offsets (N,) minimising the lap-time estimate inside the corridor; see the module doc.
 
     The offsets are a periodic cubic spline through knots ``KNOT_SPACING_M`` apart (a line a car can follow has
