@@ -110,7 +110,10 @@ OutageOpt = Annotated[
     ),
 ]
 CarCalibrationOpt = Annotated[
-    Path | None, typer.Option("--car-calibration", help="car.json from racer calibrate: the car to simulate.")
+    str | None,
+    typer.Option(
+        "--car", "--car-calibration", help="The car to simulate: a preset (default) or a car.json (racer calibrate)."
+    ),
 ]
 
 
@@ -358,6 +361,9 @@ def evaluator_cmd(
     episodes: Annotated[int, typer.Option(min=1, envvar="RACER_EVAL_EPISODES", help="Starts per direction.")] = 6,
     action_noise: Annotated[float, typer.Option(min=0, max=1, help="Action noise fraction.")] = 0.1,
     track: Annotated[list[str] | None, typer.Option(help="Evaluate on these tracks (default: the run's).")] = None,
+    forward_only: Annotated[
+        bool, typer.Option("--forward-only", help="Drive the track's own direction only, as a DeepRacer race.")
+    ] = False,
     nice: Annotated[
         int, typer.Option(min=0, max=19, envvar="RACER_EVAL_NICE", help="Lower CPU priority (Unix nice increment).")
     ] = 0,
@@ -371,7 +377,9 @@ def evaluator_cmd(
     from trainer.evaluator import EvalSettings, EvaluatorOptions, run_evaluator
 
     _setup_logging(verbose)
-    settings = EvalSettings(episodes=episodes, action_noise=action_noise, tracks=track or [])
+    settings = EvalSettings(
+        episodes=episodes, action_noise=action_noise, tracks=track or [], both_directions=not forward_only
+    )
     try:
         run_evaluator(
             EvaluatorOptions(run_id, redis_url, store, s3_endpoint, every, settings), _stop_event_on_signals()
@@ -394,7 +402,8 @@ def eval_cmd(
     sim_trace: Annotated[Path | None, typer.Option("--sim-trace", help="Write a DeepRacer sim-trace CSV.")] = None,
     video: Annotated[Path | None, typer.Option("--video", help="Write an MP4 of the first trial.")] = None,
     car_calibration: Annotated[
-        Path | None, typer.Option("--car-calibration", help="Drive this car.json instead of the run's car.")
+        str | None,
+        typer.Option("--car", "--car-calibration", help="Drive this car (a preset or a car.json), not the run's."),
     ] = None,
 ) -> None:
     """Evaluate a checkpoint of a run from a store: a table per trial, and the JSON summary."""
@@ -691,12 +700,12 @@ def bench_env_cmd(
     json_out: Annotated[str | None, typer.Option("--json", help="Write the result as JSON to F (- = stdout).")] = None,
 ) -> None:
     """Env steps per second on one core (physics + camera + reward), and its parts."""
-    from common.car_calibration import CarCalibration, load_calibration
+    from common.car_calibration import CarCalibration, load_car
     from common.config import EnvConfig
     from sim.bench import bench_env
 
     try:
-        car = load_calibration(car_calibration) if car_calibration else CarCalibration()
+        car = load_car(car_calibration) if car_calibration else CarCalibration()
         result = bench_env(EnvConfig(track=track, camera=camera, car=car), steps=steps, repeats=repeats)
     except _user_errors() as exc:
         fail(str(exc))
@@ -817,6 +826,44 @@ def bench_train_cmd(
 
 def _fmt(value: float | None) -> str:
     return "-" if value is None else f"{value:.0f}"
+
+
+@bench_app.command("race")
+def bench_race_cmd(
+    car: Annotated[str, typer.Option(help="Car: a preset name (default) or a car.json.")] = "default",
+    track: Annotated[str, typer.Option(help="Track name or .npy path (a loop).")] = "reinvent_base",
+    minutes: Annotated[float, typer.Option(min=0.5, help="Training budget per seed, minutes.")] = 30.0,
+    seeds: Annotated[str, typer.Option(help="Comma-separated seeds; medians are over them.")] = "0,1,2",
+    workers: Annotated[int, typer.Option(min=1, help="Rollout workers.")] = 2,
+    eval_starts: Annotated[int, typer.Option(min=1, help="Evaluation start points (track direction).")] = 10,
+    png: Annotated[Path | None, typer.Option("--png", help="Learning curves with the limit drawn.")] = None,
+    json_out: Annotated[str | None, typer.Option("--json", help="Write the result as JSON to F (- = stdout).")] = None,
+) -> None:
+    """Learn to race from scratch (4 m/s actions, the racing reward example) and compare with racer limit."""
+    from common.car_calibration import load_car
+    from racer.bench_race import BenchRaceSettings, bench_race, plot_race
+    from sim.track import load_track
+
+    try:
+        seed_list = [int(s) for s in seeds.split(",")]
+    except ValueError:
+        fail(f"--seeds must be comma-separated integers (got {seeds!r})")
+    try:
+        load_car(car)
+        load_track(track)
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+    result = bench_race(BenchRaceSettings(seed_list, minutes, track, car, workers, eval_starts), console)
+    if png:
+        plot_race(result, png)
+    ratio = result["ratio_to_limit"]
+    console.print(
+        f"median best robust lap {result['best_robust_lap_s']} s, limit {result['limit_s']:.2f} s"
+        + (f" ({ratio:.2f} x)" if ratio else "")
+        + f", collapses {result['collapses']} ({result['collapses_recovered']} recovered)",
+        highlight=False,
+    )
+    write_json(result, json_out)
 
 
 @bench_app.command("update")

@@ -6,7 +6,7 @@ import json
 import tempfile
 from pathlib import Path
 
-from common.car_calibration import load_calibration
+from common.car_calibration import load_car
 from common.config import RunConfig
 from common.simtrace import SimTraceRecorder
 from model_store import RunStore, open_store
@@ -25,13 +25,13 @@ def run_eval(
     action_noise: float,
     sim_trace: Path | None = None,
     video: Path | None = None,
-    car_calibration: Path | None = None,
+    car_calibration: str | Path | None = None,
 ) -> dict:
     """Evaluate and return the record (summary and trials); optionally write a sim-trace CSV and a video."""
     runs = RunStore(open_store(store, s3_endpoint))
     run = RunConfig.model_validate_json(runs.read_file(run_id, "config.json"))
     if car_calibration is not None:  # drive the policy on another car than the one it was trained on
-        run = run.model_copy(update={"env": run.env.model_copy(update={"car": load_calibration(car_calibration)})})
+        run = run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(car_calibration)})})
     version: int | str = int(checkpoint) if checkpoint.isdigit() else checkpoint
     settings = EvalSettings(
         episodes=episodes, both_directions=both_directions, action_noise=action_noise, tracks=tracks

@@ -48,6 +48,8 @@ class TrainOptions:
     """Start positions per direction in each evaluation."""
     eval_tracks: list[str] = field(default_factory=list)
     """Tracks the evaluator drives (empty = the run's track)."""
+    eval_both_directions: bool = True
+    """The evaluator also drives every start in the reverse direction (False: as a DeepRacer race, forward only)."""
     eval_nice: int = 5
     """The evaluator's nice increment: on a machine shared with the trainer and workers it yields the CPU to them.
     It still takes a share: an evaluation running during a PPO update slowed that update by up to ~50 %."""
@@ -144,6 +146,7 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
             eval_args = ["evaluator", "--run-id", run.run_id, *common, "--every", str(opts.eval_every)]
             eval_args += ["--episodes", str(opts.eval_episodes), "--nice", str(opts.eval_nice)]
             eval_args += [arg for t in opts.eval_tracks for arg in ("--track", t)]
+            eval_args += [] if opts.eval_both_directions else ["--forward-only"]
             evaluator.append(_spawn(eval_args, logs / "evaluator.log"))
         try:
             return _watch(run, opts, redis_url, trainer, _Workers(workers, common, logs, opts.worker_restarts), console)

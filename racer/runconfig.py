@@ -6,7 +6,7 @@ import re
 from pathlib import Path
 
 from common.action_space import ActionSpace, default_action_space, load_action_space
-from common.car_calibration import CarCalibration, load_calibration
+from common.car_calibration import CarCalibration, load_car
 from common.config import EnvConfig, PolicyConfig, RandomizationConfig, RunConfig, network_from_metadata
 from common.hyperparams import Hyperparameters, load_hyperparameters
 from common.jsonfile import load_json_model
@@ -53,7 +53,7 @@ def build_run(
     if notes is not None and hp.ignored():
         notes.append(f"{hyperparams}: accepted, not used by racer: {', '.join(hp.ignored())}")
     dr = load_randomization(randomization) if randomization else None
-    car = load_calibration(car_calibration) if car_calibration else CarCalibration()
+    car = load_car(car_calibration) if car_calibration else CarCalibration()
     dr = (dr or RandomizationConfig()).model_copy(update=randomization_update or {})
     env = EnvConfig(track=track, randomization=RandomizationConfig.model_validate(dr.model_dump()), car=car)
     # A broken reward function fails here, naming the user's file, before any process starts. The check drives a

@@ -137,3 +137,19 @@ def test_car_presets_and_files(tmp_path: Path) -> None:
     assert load_car(str(path)).value("tyre_friction", "mu") == 0.5
     with pytest.raises(CalibrationError, match="neither a preset"):
         load_car("fast-car")
+
+
+def test_train_takes_a_car_by_preset_name_and_refuses_an_unknown_one(tmp_path: Path) -> None:
+    from racer.runconfig import build_run
+
+    run, _ = build_run("r", car_calibration="default")
+    assert run.env.car.is_identity
+    done = subprocess.run(
+        [sys.executable, "-m", "racer", "train", "--time-limit", "60s", "--car", "warp-car"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=tmp_path,
+    )
+    assert done.returncode == 2 and "car 'warp-car' is neither a preset" in done.stderr
+    assert not (tmp_path / "runs").exists()  # nothing written

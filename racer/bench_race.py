@@ -1,0 +1,210 @@
+"""``racer bench race``: learn to race from scratch and set the result beside the car's lap-time limit.
+
+For each seed, one after the other: ``racer train`` (embedded Redis, 2 workers, the evaluator beside the trainer)
+for a fixed budget on a 4 m/s action space with the racing reward example, racer's stability knobs on (the
+collapse guard and target-KL early stopping). The evaluator judges every checkpoint on 10 start points spread
+round the lap, in the track's direction as a DeepRacer race is driven, with 10 % action noise. The figures:
+
+* ``time_to_robust_s``: when the first checkpoint that completed all its evaluation laps was made;
+* ``best_robust_lap_s``: the lowest mean lap time of such a checkpoint (every trial a lap, standing starts);
+* ``limit_s`` and ``ratio_to_limit``: ``racer limit`` for the same car, track and action space;
+* ``collapses``: checkpoints after the first robust one whose completion fell below 50 %, and
+  ``collapses_recovered`` those followed later by a robust checkpoint; ``rollbacks``: the collapse guard's;
+* ``final_completion``: the completion of the last evaluated checkpoint (0-1).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import statistics
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+
+from common.car_calibration import load_car
+from racer.embedded_redis import EmbeddedRedis
+from racer.launcher import TrainOptions, run_train
+from racer.runconfig import build_run
+from sim.reward import example_path
+
+RACE_ACTIONS = [
+    {"steering_angle": steer, "speed": speed} for speed in (1.5, 2.75, 4.0) for steer in (-30.0, -15.0, 0.0, 15.0, 30.0)
+]
+"""A 4 m/s discrete action space: five steering angles at three speeds."""
+RACE_HYPERPARAMS = {"collapse_guard": True, "target_kl": 0.05}
+"""DeepRacer's defaults plus racer's stability knobs."""
+COLLAPSED_BELOW = 0.5
+"""A checkpoint after the first robust one whose completion falls below this is a collapse."""
+
+
+@dataclass
+class BenchRaceSettings:
+    """What ``racer bench race`` runs."""
+
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
+    minutes: float = 30.0
+    track: str = "reinvent_base"
+    car: str = "default"
+    workers: int = 2
+    eval_starts: int = 10
+    """Evaluation start points (the track's direction only)."""
+
+
+def _files(folder: Path) -> tuple[Path, Path]:
+    space, hp = folder / "model_metadata.json", folder / "hyperparameters.json"
+    space.write_text(json.dumps({"action_space": RACE_ACTIONS, "action_space_type": "discrete"}))
+    hp.write_text(json.dumps(RACE_HYPERPARAMS))
+    return space, hp
+
+
+def _rows(run_dir: Path) -> list[dict]:
+    path = run_dir / "metrics.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
+
+
+def race_curve(run_dir: Path, t0: float) -> list[dict]:
+    """Per evaluated checkpoint, in version order: version, time made (s from ``t0``), env steps, completion,
+    mean and best lap (s)."""
+    made = {int(r["policy_version"]): (float(r["time"]) - t0, int(r["env_steps"])) for r in _rows(run_dir)}
+    curve = []
+    for path in sorted((run_dir / "evaluations").glob("*.json")):
+        record = json.loads(path.read_text())
+        version = int(record["version"])
+        if version not in made:
+            continue
+        laps = record.get("lap_times_s") or []
+        curve.append(
+            {
+                "version": version,
+                "time_s": round(made[version][0], 1),
+                "env_steps": made[version][1],
+                "completion": float(record["completion_rate"]),
+                "mean_lap_s": statistics.fmean(laps) if laps else None,
+                "best_lap_s": min(laps) if laps else None,
+            }
+        )
+    return curve
+
+
+def seed_figures(curve: list[dict], limit_s: float) -> dict[str, Any]:
+    """The per-seed figures of the module doc from an evaluation curve."""
+    robust = [p for p in curve if p["completion"] >= 1.0]
+    first = robust[0] if robust else None
+    best = min((p["mean_lap_s"] for p in robust), default=None)
+    after = [p for p in curve if first is not None and p["version"] > first["version"]]
+    collapsed = [i for i, p in enumerate(after) if p["completion"] < COLLAPSED_BELOW]
+    starts = [i for i in collapsed if i == 0 or after[i - 1]["completion"] >= COLLAPSED_BELOW]
+    recovered = [i for i in starts if any(p["completion"] >= 1.0 for p in after[i:])]
+    return {
+        "time_to_robust_s": first["time_s"] if first else None,
+        "env_steps_to_robust": first["env_steps"] if first else None,
+        "best_robust_lap_s": best,
+        "limit_s": limit_s,
+        "ratio_to_limit": None if best is None else best / limit_s,
+        "collapses": len(starts),
+        "collapses_recovered": len(recovered),
+        "final_completion": curve[-1]["completion"] if curve else 0.0,
+    }
+
+
+def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float) -> dict[str, Any]:
+    """One seed: ``racer train`` for the budget, then its figures."""
+    with EmbeddedRedis() as server, tempfile.TemporaryDirectory(prefix="racer-bench-race-") as tmp:
+        space, hp = _files(Path(tmp))
+        run_id = f"bench-race-s{seed}"
+        run, files = build_run(run_id, settings.track, str(example_path("racing_line")), str(space), str(hp), seed=seed)
+        run = run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(settings.car)})})
+        opts = TrainOptions(
+            settings.workers,
+            server.url,
+            str(Path(tmp, "store")),
+            None,
+            settings.minutes * 60.0,
+            eval_every=1,
+            eval_episodes=settings.eval_starts,
+            eval_both_directions=False,
+        )
+        t0 = time.time()
+        run_train(run, opts, files, Console(file=io.StringIO()))
+        run_dir = Path(tmp, "store", "runs", run_id)
+        curve = race_curve(run_dir, t0)
+        rows = _rows(run_dir)
+    figures = seed_figures(curve, limit_s)
+    figures.update(seed=seed, rollbacks=int(rows[-1].get("rollbacks", 0)) if rows else 0, curve=curve)
+    return figures
+
+
+def _median(values: list[float | None]) -> float | None:
+    known = [v for v in values if v is not None]
+    return statistics.median(known) if known else None
+
+
+def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> dict[str, Any]:
+    """Every seed in turn, then medians; see the module doc."""
+    from racer.limit import compute_limit
+
+    with tempfile.TemporaryDirectory() as tmp:
+        space, _ = _files(Path(tmp))
+        limit = compute_limit(settings.track, settings.car, space)
+    limit_s = float(limit["lap_time_s"])
+    if progress:
+        progress.print(f"limit on {settings.track} for car {settings.car}: {limit_s:.2f} s", highlight=False)
+    seeds = []
+    for seed in settings.seeds:
+        figures = run_seed(settings, seed, limit_s)
+        seeds.append(figures)
+        if progress:
+            progress.print(
+                f"seed {seed}: robust after {figures['time_to_robust_s']} s, best robust lap "
+                f"{figures['best_robust_lap_s']} s, collapses {figures['collapses']}, "
+                f"final completion {figures['final_completion']:.2f}",
+                highlight=False,
+            )
+    keys = ("time_to_robust_s", "best_robust_lap_s", "ratio_to_limit", "final_completion")
+    medians = {key: _median([s[key] for s in seeds]) for key in keys}
+    return {
+        "track": settings.track,
+        "car": settings.car,
+        "minutes": settings.minutes,
+        "workers": settings.workers,
+        "eval_starts": settings.eval_starts,
+        "action_space": RACE_ACTIONS,
+        "hyperparams": RACE_HYPERPARAMS,
+        "limit_s": limit_s,
+        "driven_limit_s": limit["driven_lap_time_s"],
+        **medians,
+        "collapses": sum(s["collapses"] for s in seeds),
+        "collapses_recovered": sum(s["collapses_recovered"] for s in seeds),
+        "seeds": seeds,
+    }
+
+
+def plot_race(result: dict[str, Any], out_png: str | Path) -> Path:
+    """Learning curves: each seed's robust mean lap time (and completion) against time, the limit drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from racer.plots import _save
+
+    fig, (ax_lap, ax_done) = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
+    for s in result["seeds"]:
+        t = [p["time_s"] / 60 for p in s["curve"]]
+        ax_done.plot(t, [p["completion"] for p in s["curve"]], marker=".", label=f"seed {s['seed']}")
+        robust = [(p["time_s"] / 60, p["mean_lap_s"]) for p in s["curve"] if p["completion"] >= 1.0]
+        if robust:
+            ax_lap.plot(*zip(*robust, strict=True), marker="o", label=f"seed {s['seed']}")
+    ax_lap.axhline(result["limit_s"], color="black", ls="--", label=f"racer limit {result['limit_s']:.2f} s")
+    ax_lap.set_ylabel("robust mean lap (s)")
+    ax_lap.legend()
+    ax_done.set_ylabel("evaluation completion")
+    ax_done.set_xlabel("minutes")
+    ax_done.set_ylim(-0.05, 1.05)
+    ax_lap.set_title(f"racer bench race: {result['track']}, car {result['car']}, {result['minutes']:g} min per seed")
+    return _save(fig, out_png)

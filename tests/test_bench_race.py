@@ -1,0 +1,48 @@
+"""racer bench race: its figures from an evaluation curve, computed by hand."""
+
+from __future__ import annotations
+
+import pytest
+
+from racer.bench_race import seed_figures
+
+
+def point(version: int, completion: float, mean_lap: float | None = None) -> dict:
+    return {
+        "version": version,
+        "time_s": 60.0 * version,
+        "env_steps": 1000 * version,
+        "completion": completion,
+        "mean_lap_s": mean_lap,
+        "best_lap_s": mean_lap,
+    }
+
+
+def test_figures_of_a_run_that_collapses_twice_and_recovers_once() -> None:
+    curve = [
+        point(1, 0.2),
+        point(2, 1.0, 9.0),  # first robust
+        point(3, 1.0, 7.5),  # best robust
+        point(4, 0.3),  # collapse 1 starts
+        point(5, 0.0),  # still collapse 1
+        point(6, 1.0, 8.0),  # recovered
+        point(7, 0.4),  # collapse 2, never recovered
+    ]
+    figures = seed_figures(curve, limit_s=6.0)
+    assert figures["time_to_robust_s"] == 120.0 and figures["env_steps_to_robust"] == 2000
+    assert figures["best_robust_lap_s"] == 7.5
+    assert figures["ratio_to_limit"] == pytest.approx(1.25)
+    assert figures["collapses"] == 2 and figures["collapses_recovered"] == 1
+    assert figures["final_completion"] == 0.4
+
+
+def test_figures_of_a_run_that_never_laps() -> None:
+    figures = seed_figures([point(1, 0.0), point(2, 0.5)], limit_s=6.0)
+    assert figures["time_to_robust_s"] is None and figures["best_robust_lap_s"] is None
+    assert figures["ratio_to_limit"] is None and figures["collapses"] == 0
+    assert figures["final_completion"] == 0.5
+
+
+def test_a_dip_that_stays_above_half_is_not_a_collapse() -> None:
+    figures = seed_figures([point(1, 1.0, 8.0), point(2, 0.6), point(3, 1.0, 7.0)], limit_s=6.0)
+    assert figures["collapses"] == 0 and figures["best_robust_lap_s"] == 7.0
