@@ -1,22 +1,32 @@
-"""The car calibration file (``car.json``): effects between the command and the wheels, with their parameters.
+"""The car file (``car.json``): the car's physical properties and the effects between command and wheels.
 
-``racer calibrate`` writes it; ``racer train/eval/bench --car-calibration F`` load it and every env of the run
-applies it (``sim/actuation.py`` holds the maths). The file::
+``racer calibrate`` writes it; ``racer train/eval/bench --car-calibration F`` (and ``--car NAME|FILE``) load
+it and every env of the run applies it. The file::
 
     {"version": 1,
+     "about": "where the values came from (optional, informative)",
      "effects": [{"name": "steering_lag", "params": {"tau_s": 0.55}, "stderr": {"tau_s": 0.02}}, ...]}
 
-Each effect is named from :data:`EFFECTS`; an effect that is absent acts as the identity. ``stderr`` is
-informative (the fit's standard error) and optional. The file is validated in full: an unknown effect or
-parameter, a missing parameter, a value outside its physical range or a repeated effect is refused with one
-line naming it.
+Each effect is named from :data:`EFFECTS`; an effect that is absent acts as the identity (the car as
+modelled in ``sim/assets/car.xml``). Two kinds (:attr:`EffectSpec.acts_on`): ``command`` effects sit between
+the command and the servos (``sim/actuation.py`` holds the maths); ``model`` effects are properties of the
+MuJoCo car itself (tyre friction, masses, inertias, the wheel drives) that ``sim/physics.py`` writes into the
+model. ``stderr`` is informative (the fit's standard error) and optional. The file is validated in full: an
+unknown effect or parameter, a missing parameter, a value outside its physical range or a repeated effect is
+refused with one line naming it.
+
+Presets (:data:`CAR_PRESETS`, ``--car NAME``) are car files shipped in ``sim/cars/``; ``default`` is the car
+as modelled, with no effects.
 """
 
 from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
+from functools import cache
+from importlib.resources.abc import Traversable
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -43,6 +53,13 @@ class EffectSpec:
 
     doc: str
     params: dict[str, ParamSpec]
+    acts_on: str = "command"
+    """``command``: between the command and the servos (``sim.actuation``); ``model``: a property of the MuJoCo
+    car that ``sim.physics`` writes into the model."""
+    candidate: bool = True
+    """Whether ``racer calibrate`` tries it unless told which effects to try. The car's masses, inertias and
+    drives are not: they come from the car's design (e.g. the DeepRacer simapp's URDF), not from trajectories,
+    which hardly tell a mass from a drive gain."""
 
 
 EFFECTS: dict[str, EffectSpec] = {
@@ -85,14 +102,53 @@ EFFECTS: dict[str, EffectSpec] = {
     "tyre_friction": EffectSpec(
         "tyre-ground friction coefficient: how much lateral grip the car has before it slides",
         {"mu": ParamSpec(1.0, 0.2, 3.0, 1.3, 0.2, "friction coefficient (the model's is 1.0)")},
+        acts_on="model",
+    ),
+    # The identity values below are the compiled sim/assets/car.xml's (rounded); an absent effect leaves the
+    # compiled model untouched, so the default car stays exactly as compiled.
+    "chassis": EffectSpec(
+        "the car body (chassis, camera, shell: everything rigid): its mass, centre of mass and inertia",
+        {
+            "mass_kg": ParamSpec(1.4, 0.2, 20.0, 1.4, 0.2, "mass, kg"),
+            "com_x_m": ParamSpec(-0.0061, -0.1, 0.1, -0.0061, 0.005, "centre of mass ahead of base_link, m"),
+            "com_z_m": ParamSpec(0.0225, -0.03, 0.1, 0.0225, 0.005, "centre of mass above the axles, m"),
+            "ixx_kgm2": ParamSpec(0.0017, 1e-5, 1.0, 0.0017, 0.0005, "roll inertia about the centre of mass"),
+            "iyy_kgm2": ParamSpec(0.0057, 1e-5, 1.0, 0.0057, 0.0005, "pitch inertia about the centre of mass"),
+            "izz_kgm2": ParamSpec(0.0068, 1e-5, 1.0, 0.0068, 0.0005, "yaw inertia about the centre of mass"),
+        },
+        acts_on="model",
+        candidate=False,
+    ),
+    "wheels": EffectSpec(
+        "mass and inertia of each wheel, and the mass of each steering hinge",
+        {
+            "mass_kg": ParamSpec(0.06, 0.005, 2.0, 0.06, 0.01, "mass of one wheel, kg"),
+            "spin_inertia_kgm2": ParamSpec(2.94e-5, 1e-6, 0.01, 2.94e-5, 1e-5, "about the axle, kg·m²"),
+            "cross_inertia_kgm2": ParamSpec(2.94e-5, 1e-6, 0.01, 2.94e-5, 1e-5, "about a diameter, kg·m²"),
+            "hinge_mass_kg": ParamSpec(0.02, 0.001, 1.0, 0.02, 0.01, "mass of one steering hinge, kg"),
+        },
+        acts_on="model",
+        candidate=False,
+    ),
+    "drive": EffectSpec(
+        "the wheel drives: torque = gain × (target − actual wheel speed), within ± max torque",
+        {
+            "rear_gain_nms": ParamSpec(0.02, 1e-3, 10.0, 0.02, 0.01, "rear wheels, N·m per rad/s"),
+            "front_gain_nms": ParamSpec(0.02, 1e-3, 10.0, 0.02, 0.01, "front wheels, N·m per rad/s"),
+            "max_torque_nm": ParamSpec(0.12, 0.01, 20.0, 0.12, 0.05, "largest torque of one wheel's drive, N·m"),
+        },
+        acts_on="model",
+        candidate=False,
     ),
 }
-"""The candidate effects, by name. Order of application (fixed, whatever the file's order): steering
-offset, gain and saturation, then delay, then lag, then understeer; speed gain, then delay, then lag. All but
-``tyre_friction`` act between the command and the servos; ``tyre_friction`` is a property of the tyres."""
+"""The effects, by name. Order of application of the command effects (fixed, whatever the file's order):
+steering offset, gain and saturation, then delay, then lag, then understeer; speed gain, then delay, then lag.
+The model effects (``tyre_friction``, ``chassis``, ``wheels``, ``drive``) are properties of the car itself."""
 
-
-_TYRE_EFFECTS = ("tyre_friction",)
+MODEL_EFFECTS = tuple(name for name, spec in EFFECTS.items() if spec.acts_on == "model")
+"""Effects that ``sim.physics`` writes into the MuJoCo model (the others act on the commands)."""
+CANDIDATE_EFFECTS = tuple(name for name, spec in EFFECTS.items() if spec.candidate)
+"""Effects ``racer calibrate`` tries unless told which (``--effect``)."""
 
 
 class CalibrationError(ValueError):
@@ -130,11 +186,14 @@ class CarEffect(BaseModel):
 
 
 class CarCalibration(BaseModel):
-    """Effects between the command and the wheels. No effects = the car as modelled (the default)."""
+    """The car's effects: its physical properties and what lies between command and wheels. No effects = the
+    car as modelled (the default)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
     version: int = Field(1, ge=1, le=1)
     """File format version."""
+    about: str | None = None
+    """Where the values came from (informative; not used by the simulator)."""
     effects: list[CarEffect] = Field(default_factory=list)
     """The effects, each at most once."""
 
@@ -153,6 +212,10 @@ class CarCalibration(BaseModel):
                 return e.params[param]
         return EFFECTS[effect].params[param].identity
 
+    def has(self, effect: str) -> bool:
+        """True when the file names this effect (at whatever value)."""
+        return any(e.name == effect for e in self.effects)
+
     @property
     def is_identity(self) -> bool:
         """True when no effect changes anything (the uncalibrated car)."""
@@ -160,8 +223,8 @@ class CarCalibration(BaseModel):
 
     @property
     def acts_on_commands(self) -> bool:
-        """True when an effect sits between the command and the servos (all but the tyres' properties)."""
-        return any(e.name not in _TYRE_EFFECTS for e in self.effects)
+        """True when an effect sits between the command and the servos (all but the model's properties)."""
+        return any(e.name not in MODEL_EFFECTS for e in self.effects)
 
     @classmethod
     def from_values(cls, values: dict[str, dict[str, float]], stderr: dict[str, dict[str, float]] | None = None):
@@ -170,9 +233,9 @@ class CarCalibration(BaseModel):
         return cls(effects=[CarEffect(name=n, params=p, stderr=stderr.get(n)) for n, p in values.items()])
 
 
-def load_calibration(path: str | Path) -> CarCalibration:
+def load_calibration(path: str | Path | Traversable) -> CarCalibration:
     """Read and validate a calibration file; any problem is a :class:`CalibrationError` naming the file."""
-    path = Path(path)
+    path = Path(path) if isinstance(path, str) else path
     try:
         text = path.read_text()
     except OSError as exc:
@@ -197,8 +260,45 @@ def save_calibration(calibration: CarCalibration, path: str | Path) -> None:
     Path(path).write_text(calibration.model_dump_json(indent=2, exclude_none=True) + "\n")
 
 
-CAR_PRESETS: dict[str, CarCalibration] = {"default": CarCalibration()}
-"""Cars known by name (``--car NAME``): ``default`` is the car as modelled, with no effects."""
+PRESET_FILES: dict[str, str | None] = {
+    "default": None,
+    "deepracer-gazebo": "deepracer-gazebo.json",
+    "deepracer-gazebo-ros2": "deepracer-gazebo-ros2.json",
+}
+"""Preset names and their car files in ``sim/cars/`` (``default``: the car as modelled, no file)."""
+
+
+@cache
+def _load_preset(name: str) -> CarCalibration:
+    file = PRESET_FILES[name]
+    if file is None:
+        return CarCalibration()
+    from importlib import resources
+
+    # Read through importlib.resources, so that an installed package finds its own copy. Looked up here, not at
+    # import: finding ``sim`` imports it, and the car runtime (deploy/) imports this module but never a preset.
+    return load_calibration(resources.files("sim") / "cars" / file)
+
+
+class _Presets(Mapping[str, CarCalibration]):
+    """Name → car, each read from its shipped file on first use."""
+
+    def __getitem__(self, name: str) -> CarCalibration:
+        if name not in PRESET_FILES:
+            raise KeyError(name)
+        return _load_preset(name)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(PRESET_FILES)
+
+    def __len__(self) -> int:
+        return len(PRESET_FILES)
+
+
+CAR_PRESETS: Mapping[str, CarCalibration] = _Presets()
+"""Cars known by name (``--car NAME``): ``default`` is the car as modelled, with no effects;
+``deepracer-gazebo`` is DeepRacer's Gazebo car of the ROS1 simapp (the AWS console and DeepRacer-for-Cloud
+up to 2025), ``deepracer-gazebo-ros2`` that of the ROS2 simapp 6 (gz-sim, 2026); see ``sim/cars/SOURCES.md``."""
 
 
 def load_car(spec: str | Path) -> CarCalibration:

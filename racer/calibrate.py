@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.car_calibration import EFFECTS, load_calibration, save_calibration
+from common.car_calibration import EFFECTS, CarCalibration, load_car, save_calibration
 from sim.calibration import read_logs
 from sim.calibration.fit import Result, calibrate, score
 from sim.calibration.replay import TIMINGS
@@ -15,7 +15,7 @@ from sim.calibration.replay import TIMINGS
 
 def run_calibrate(
     logs: list[Path],
-    apply: Path | None = None,
+    apply: str | Path | None = None,
     out: Path | None = None,
     png: Path | None = None,
     effects: list[str] | None = None,
@@ -23,16 +23,19 @@ def run_calibrate(
     max_windows: int = 400,
     say: Callable[[str], None] = print,
     timing: str = "auto",
+    base: str | Path | None = None,
 ) -> dict:
-    """Fit effects on ``logs`` (or score the calibration ``apply`` on them) and return the report."""
+    """Fit effects on ``logs`` (or score the car ``apply``, a preset's name or a car.json, on them) and return
+    the report. ``base``: a car (preset name or car.json) whose effects the fit keeps and builds on."""
     if timing not in ("auto", *TIMINGS):
         raise ValueError(f"--timing {timing!r} is not one of auto, {', '.join(TIMINGS)}")
     for name in effects or []:
         if name not in EFFECTS:
             raise ValueError(f"--effect {name!r} is not an effect; known: {', '.join(EFFECTS)}")
-    if apply is not None and (out is not None or effects):
-        raise ValueError("--apply scores an existing calibration: it takes no --out or --effect")
-    calibration = load_calibration(apply) if apply is not None else None
+    if apply is not None and (out is not None or effects or base is not None):
+        raise ValueError("--apply scores an existing car: it takes no --out, --effect or base car")
+    calibration = load_car(apply) if apply is not None else None
+    base_car: CarCalibration | None = load_car(base) if base is not None else None
     trajectories = read_logs(logs, track=track)
     if not trajectories:
         raise ValueError(f"no usable episode in {', '.join(map(str, logs))}")
@@ -42,7 +45,7 @@ def run_calibrate(
         result.report["fit_on"] = []  # nothing was fitted here: the calibration came from elsewhere
         result.report["calibration"] = str(apply)
     else:
-        result = calibrate(trajectories, effects, max_windows, say, timing)
+        result = calibrate(trajectories, effects, max_windows, say, timing, base_car)
         if out is not None:
             save_calibration(result.calibration, out)
             say(f"wrote {out}")

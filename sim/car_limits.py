@@ -32,6 +32,8 @@ SETTLE_STEPS = 60
 """Control steps (4 s) a cornering trial lasts."""
 JUDGED_STEPS = 30
 """Its last 30 steps (2 s) are judged."""
+MIN_SPEED_KEPT = 0.85
+"""A trial in which the car keeps less than this fraction of its commanded speed (scrub) does not hold the curve."""
 MAX_SIDE_SLIP_DEG = 5.0
 """A trial whose rear axle slips sideways by more than this in its last second is sliding, not following the curve."""
 
@@ -165,7 +167,7 @@ def _held_curvature(physics: CarPhysics, speed: float, steer_deg: float) -> tupl
         speeds.append(math.hypot(forward, left))
     judged = slice(SETTLE_STEPS - JUDGED_STEPS, SETTLE_STEPS)
     r, v = np.array(rates[judged]), np.array(speeds[judged])
-    if not physics.upright or np.max(slips[judged]) > MAX_SIDE_SLIP_DEG or v.mean() < 0.85 * speed:
+    if not physics.upright or np.max(slips[judged]) > MAX_SIDE_SLIP_DEG or v.mean() < MIN_SPEED_KEPT * speed:
         return None
     return float(v.mean()), float(abs(r.mean()) / v.mean())
 

@@ -20,6 +20,16 @@ FRONT_POINT_M = 0.14
 MAX_STEERING_DEG = 30.0
 SPEED_RANGE_MPS = (0.1, 4.0)
 _WHEELS = ("fl", "fr", "rl", "rr")
+_CAR_FIELDS = (
+    "body_mass",
+    "body_inertia",
+    "body_ipos",
+    "body_iquat",
+    "actuator_gainprm",
+    "actuator_biasprm",
+    "actuator_forcerange",
+)
+"""The model fields a car file's model effects write (``CarPhysics.set_calibration``)."""
 
 
 @dataclass(frozen=True)
@@ -52,8 +62,13 @@ class CarPhysics:
         self._steer = [model.actuator(f"{w}_steer").id for w in ("fl", "fr")]
         self._steer_q = [model.jnt_qposadr[model.joint(f"{w}_steer").id] for w in ("fl", "fr")]
         self._car_body = model.body("car").id
+        self._wheel_bodies = [model.body(f"{w}_wheel").id for w in _WHEELS]
+        self._hinge_bodies = [model.body(f"{w}_steer").id for w in ("fl", "fr")]
         self._tyres = [model.geom(f"{w}_tyre").id for w in _WHEELS]
         self._tyre_friction = model.geom_friction[self._tyres, 0].copy()
+        # The compiled car, restored before each calibration writes its own values over it.
+        self._compiled = {name: getattr(model, name).copy() for name in _CAR_FIELDS}
+        self._model_changed = False  # whether a calibration changed the compiled masses or drives
         self._mass = model.body_mass.copy()
         self._inertia = model.body_inertia.copy()
         self._height = float(model.body_pos[self._car_body, 2])
@@ -62,15 +77,50 @@ class CarPhysics:
         self._target = (0.0, 0.0)
 
     def set_calibration(self, calibration: CarCalibration | None) -> None:
-        """Apply a calibration (``racer calibrate``): its tyre friction, and its other effects between the
-        command and the servos. None or no effects: the car as modelled."""
+        """Apply a car file (a preset, or ``racer calibrate``'s): its model effects (tyre friction, body masses
+        and inertias, wheel drives) on the MuJoCo model, and its effects between the command and the servos.
+        None or no effects: the car as modelled. Undoes any earlier calibration and domain randomization."""
         calibration = calibration or CarCalibration()
         self._tyre_friction[:] = calibration.value("tyre_friction", "mu")
         self.model.geom_friction[self._tyres, 0] = self._tyre_friction
+        self._set_model_effects(calibration)
         if calibration.is_identity or not calibration.acts_on_commands:
             self._actuation = None
         else:
             self._actuation = Actuation(calibration, float(self.model.opt.timestep))
+
+    def _set_model_effects(self, cal: CarCalibration) -> None:
+        """Write the car file's masses, inertias and drives into the model (the compiled values where absent)."""
+        changes = any(cal.has(e) for e in ("chassis", "wheels", "drive"))
+        if not (changes or self._model_changed):
+            return  # the compiled car, untouched: bit for bit the model of sim/assets/car.xml
+        m = self.model
+        for name, value in self._compiled.items():
+            getattr(m, name)[:] = value
+        if cal.has("chassis"):
+            c = self._car_body
+            m.body_mass[c] = cal.value("chassis", "mass_kg")
+            m.body_ipos[c] = (cal.value("chassis", "com_x_m"), 0.0, cal.value("chassis", "com_z_m"))
+            m.body_iquat[c] = (1.0, 0.0, 0.0, 0.0)  # inertia given about the car's own axes
+            m.body_inertia[c] = [cal.value("chassis", f"i{a}{a}_kgm2") for a in "xyz"]
+        if cal.has("wheels"):
+            spin, cross = cal.value("wheels", "spin_inertia_kgm2"), cal.value("wheels", "cross_inertia_kgm2")
+            m.body_mass[self._wheel_bodies] = cal.value("wheels", "mass_kg")
+            m.body_inertia[self._wheel_bodies] = (cross, spin, cross)  # the wheel spins about its y axis
+            m.body_mass[self._hinge_bodies] = cal.value("wheels", "hinge_mass_kg")
+        if cal.has("drive"):
+            torque = cal.value("drive", "max_torque_nm")
+            for wheel, act in zip(_WHEELS, self._drive, strict=True):
+                gain = cal.value("drive", "rear_gain_nms" if wheel[0] == "r" else "front_gain_nms")
+                m.actuator_gainprm[act, 0] = gain  # a velocity servo: force = gain · ctrl - gain · velocity
+                m.actuator_biasprm[act, 2] = -gain
+                m.actuator_forcerange[act] = (-torque, torque)
+        # Constants MuJoCo derives from the masses at compile time (constraint scaling, mean inertia): refresh
+        # them for the new car, on scratch data (mj_setConst moves the state it is given to qpos0).
+        mujoco.mj_setConst(m, mujoco.MjData(m))
+        self._model_changed = changes
+        self._mass = m.body_mass.copy()
+        self._inertia = m.body_inertia.copy()
 
     def reset(self, pose: Pose) -> None:
         """Place the car at rest at ``pose`` with wheels straight."""
@@ -85,7 +135,7 @@ class CarPhysics:
             self._actuation.reset()
 
     def set_dynamics(self, friction_scale: float = 1.0, mass_scale: float = 1.0) -> None:
-        """Scale tyre friction and all body masses (domain randomization); 1.0 restores the model (and calibration)."""
+        """Scale tyre friction and all body masses (domain randomization); 1.0 restores the car as calibrated."""
         self.model.geom_friction[self._tyres, 0] = self._tyre_friction * friction_scale
         self.model.body_mass[:] = self._mass * mass_scale
         self.model.body_inertia[:] = self._inertia * mass_scale

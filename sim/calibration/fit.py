@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
-from common.car_calibration import EFFECTS, CarCalibration, ParamSpec
+from common.car_calibration import CANDIDATE_EFFECTS, EFFECTS, CarCalibration, CarEffect, ParamSpec
 from sim.calibration.logs import Trajectory
 from sim.calibration.replay import Replayer, Windows, detect_timing, make_windows, residuals
 from sim.calibration.response import command_response, simulate_open_loop
@@ -162,23 +162,27 @@ def _param_keys(effects: list[str]) -> list[tuple[str, str]]:
 
 
 def _to_calibration(
-    keys: list[tuple[str, str]], x: np.ndarray, err: np.ndarray | None, fixed: dict[str, dict[str, float]]
+    keys: list[tuple[str, str]], x: np.ndarray, err: np.ndarray | None, fixed: CarCalibration
 ) -> CarCalibration:
-    values: dict[str, dict[str, float]] = {k: dict(v) for k, v in fixed.items()}
+    """``fixed`` with the parameters ``keys`` set to ``x`` (and their standard errors ``err``): its other
+    effects, and its ``about``, are kept as they are."""
+    values: dict[str, dict[str, float]] = {}
     stderr: dict[str, dict[str, float]] = {}
     for i, (e, p) in enumerate(keys):
         spec = EFFECTS[e].params[p]
         values.setdefault(e, {})[p] = float(np.clip(x[i], spec.low, spec.high))
         if err is not None:
             stderr.setdefault(e, {})[p] = float(err[i])
-    return CarCalibration.from_values(values, stderr if err is not None else None)
+    kept = [e for e in fixed.effects if e.name not in values]
+    fitted = [CarEffect(name=n, params=p, stderr=stderr.get(n)) for n, p in values.items()]
+    return CarCalibration(about=fixed.about, effects=kept + fitted)
 
 
 def fit_effects(
     objective: Objective, effects: list[str], start: CarCalibration | None = None, free: list[str] | None = None
 ) -> Fit:
     """Fit the parameters of the ``free`` effects (default: all of ``effects``, jointly) on the objective's
-    windows; the others keep their values in ``start``.
+    windows; every other effect of ``start`` keeps its value (the base car's effects among them).
 
     Derivative-free on purpose: the replayed car's contacts make the cost rough at the scale of small
     parameter changes (a 0.5 ms change of a delay moves single speed residuals by 3 % of the cost), and
@@ -188,7 +192,7 @@ def fit_effects(
     """
     start = start or CarCalibration()
     free = effects if free is None else free
-    fixed = {e.name: e.params for e in start.effects if e.name in effects and e.name not in free}
+    fixed = start.model_copy(update={"effects": [e for e in start.effects if e.name not in free]})
     keys = _param_keys(free)
     specs = [EFFECTS[e].params[p] for e, p in keys]
     started = {e.name for e in start.effects}
@@ -275,11 +279,16 @@ def select_effects(
     sel_obj: Objective,
     candidates: list[str] | None = None,
     progress: Callable[[str], None] = log.info,
+    base: CarCalibration | None = None,
 ) -> tuple[CarCalibration, list[Round]]:
-    """Forward selection of effects by held-out cost (see the module docstring); returns the calibration."""
-    remaining = list(candidates or EFFECTS)
+    """Forward selection of effects by held-out cost (see the module docstring); returns the calibration.
+
+    ``base``: the car to start from (e.g. one built from its design); its effects stay as they are, and are
+    not candidates."""
+    base = base or CarCalibration()
+    remaining = [c for c in (candidates or CANDIDATE_EFFECTS) if not base.has(c)]
     chosen: list[str] = []
-    current = CarCalibration()
+    current = base
     current_cost = sel_obj.cost(current)
     rounds: list[Round] = []
     while remaining:
@@ -317,30 +326,39 @@ def select_effects(
         if joint_cost < current_cost:
             current, current_cost = joint.calibration, joint_cost
         progress(f"chose {best['name']}: held-out cost {current_cost:.3f}")
-    current, current_cost = _prune(current, current_cost, sel_obj, progress)
-    return with_stderr(fit_obj, current), rounds
+    current, current_cost = _prune(current, current_cost, sel_obj, progress, base)
+    return with_stderr(fit_obj, current, base), rounds
 
 
-def with_stderr(objective: Objective, cal: CarCalibration) -> CarCalibration:
-    """The calibration with the standard errors of all its parameters, estimated jointly at its values."""
-    if not cal.effects:
+def with_stderr(objective: Objective, cal: CarCalibration, base: CarCalibration | None = None) -> CarCalibration:
+    """The calibration with the standard errors of all its parameters (but the base car's, which are not
+    fitted), estimated jointly at its values."""
+    base = base or CarCalibration()
+    fitted = [e.name for e in cal.effects if not base.has(e.name)]
+    if not fitted:
         return cal
-    keys = _param_keys([e.name for e in cal.effects])
+    keys = _param_keys(fitted)
     specs = [EFFECTS[e].params[p] for e, p in keys]
     x = np.array([cal.value(e, p) for e, p in keys])
 
     def vector(v: np.ndarray) -> np.ndarray:  # _to_calibration keeps each value within its bounds
-        return objective.vector(objective.residual(_to_calibration(keys, v, None, {})))
+        return objective.vector(objective.residual(_to_calibration(keys, v, None, cal)))
 
-    return _to_calibration(keys, x, _standard_errors(vector, x, vector(x), specs, objective.clusters()), {})
+    return _to_calibration(keys, x, _standard_errors(vector, x, vector(x), specs, objective.clusters()), cal)
 
 
 def _prune(
-    cal: CarCalibration, cost: float, sel_obj: Objective, progress: Callable[[str], None]
+    cal: CarCalibration,
+    cost: float,
+    sel_obj: Objective,
+    progress: Callable[[str], None],
+    base: CarCalibration | None = None,
 ) -> tuple[CarCalibration, float]:
-    """Drop chosen effects that no longer pay after the joint refits (the others may now explain what they did)."""
-    for effect in list(cal.effects):
-        without = CarCalibration(effects=[e for e in cal.effects if e.name != effect.name])
+    """Drop chosen effects that no longer pay after the joint refits (the others may now explain what they did);
+    the base car's effects stay."""
+    base = base or CarCalibration()
+    for effect in [e for e in cal.effects if not base.has(e.name)]:
+        without = cal.model_copy(update={"effects": [e for e in cal.effects if e.name != effect.name]})
         cost_without = sel_obj.cost(without)
         if cost < cost_without * (1 - PENALTY_PER_PARAM * len(effect.params)):
             continue
@@ -453,21 +471,25 @@ def calibrate(
     max_windows: int = MAX_FIT_WINDOWS,
     progress: Callable[[str], None] = log.info,
     timing: str = "auto",
+    base: CarCalibration | None = None,
 ) -> Result:
-    """Choose and fit the effects on part of the episodes; score before and after on episodes it did not use."""
+    """Choose and fit the effects on part of the episodes; score before and after on episodes it did not use.
+
+    ``base``: the car to start from; its effects are kept as they are and others are chosen on top of it.
+    "before" is always the car as modelled (no effects), so that scores compare with the default car's."""
     if timing == "auto":
         timing = detect_timing(trajectories)  # one rule for all parts, decided on all the logs given
     parts = split_episodes(trajectories)
     if not all(parts.values()):
         raise ValueError(f"need at least 4 usable episodes to fit, choose and report apart; got {len(trajectories)}")
     replayer = Replayer()
-    fit_w = spread(make_windows(parts["fit"], stride=5, timing=timing), max_windows)
-    sel_w = spread(make_windows(parts["select"], stride=5, timing=timing), max_windows)
+    fit_w, sel_w = fit_windows(parts, max_windows, timing)
     scales = channel_scales(residuals(replayer.replay(fit_w), fit_w.measured()))
     progress(f"fit on {len(fit_w)} windows, choose on {len(sel_w)}; uncalibrated fit cost 3.000")
-    cal, rounds = select_effects(
-        Objective(replayer, fit_w, scales), Objective(replayer, sel_w, scales), candidates, progress
-    )
+    fit_obj, sel_obj = Objective(replayer, fit_w, scales), Objective(replayer, sel_w, scales)
+    if base is not None and base.effects:
+        progress(f"base car ({', '.join(e.name for e in base.effects)}): fit cost {fit_obj.cost(base):.3f}")
+    cal, rounds = select_effects(fit_obj, sel_obj, candidates, progress, base)
     result = score(cal, parts["report"], replayer, timing)
     result.report.update(
         {
@@ -480,4 +502,38 @@ def calibrate(
             "windows_selected_on": len(sel_w),
         }
     )
+    if base is not None:
+        # The base car alone on the report windows: what its design explains before any effect is fitted.
+        base_res = residuals(replayer.replay(result.windows, base), result.replays["measured"])
+        result.report["base"] = [e.model_dump(exclude_none=True) for e in base.effects]
+        result.report["error_base"] = error_summary(base_res)
     return result
+
+
+def fit_windows(parts: dict[str, list[Trajectory]], max_windows: int, timing: str) -> tuple[Windows, Windows]:
+    """The windows :func:`calibrate` fits on and chooses on: every 5th sample of the fit and select episodes,
+    at most ``max_windows`` of each, evenly spread."""
+    fit_w = spread(make_windows(parts["fit"], stride=5, timing=timing), max_windows)
+    sel_w = spread(make_windows(parts["select"], stride=5, timing=timing), max_windows)
+    return fit_w, sel_w
+
+
+def refit(
+    trajectories: list[Trajectory],
+    car: CarCalibration,
+    base: CarCalibration,
+    max_windows: int = MAX_FIT_WINDOWS,
+    timing: str = "auto",
+) -> CarCalibration:
+    """Fit again, jointly and from their usual starting values, the effects ``car`` has on top of ``base``, on
+    the windows :func:`calibrate` would fit them on: a check that a car file's fitted values follow from its
+    logs (the choice of effects is taken as made)."""
+    if timing == "auto":
+        timing = detect_timing(trajectories)
+    replayer = Replayer()
+    fit_w, _ = fit_windows(split_episodes(trajectories), max_windows, timing)
+    scales = channel_scales(residuals(replayer.replay(fit_w), fit_w.measured()))
+    fitted = [e.name for e in car.effects if not base.has(e.name)]
+    return fit_effects(
+        Objective(replayer, fit_w, scales), fitted, base.model_copy(update={"about": car.about})
+    ).calibration
