@@ -795,10 +795,7 @@ def bench_train_cmd(
     from racer.bench_train import BenchTrainSettings, bench_train
     from racer.runconfig import build_run, parse_duration
 
-    try:
-        seed_list = [int(s) for s in seeds.split(",")]
-    except ValueError:
-        fail(f"--seeds must be comma-separated integers (got {seeds!r})")
+    seed_list = _seed_list(seeds)
     try:
         from common.config import check_precision
 
@@ -824,6 +821,14 @@ def bench_train_cmd(
     write_json(result, json_out)
 
 
+def _seed_list(seeds: str) -> list[int]:
+    """``--seeds 0,1,2`` as integers, or a one-line usage error."""
+    try:
+        return [int(s) for s in seeds.split(",")]
+    except ValueError:
+        fail(f"--seeds must be comma-separated integers (got {seeds!r})")
+
+
 def _fmt(value: float | None) -> str:
     return "-" if value is None else f"{value:.0f}"
 
@@ -844,10 +849,7 @@ def bench_race_cmd(
     from racer.bench_race import BenchRaceSettings, bench_race, plot_race
     from sim.track import load_track
 
-    try:
-        seed_list = [int(s) for s in seeds.split(",")]
-    except ValueError:
-        fail(f"--seeds must be comma-separated integers (got {seeds!r})")
+    seed_list = _seed_list(seeds)
     try:
         load_car(car)
         load_track(track)
