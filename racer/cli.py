@@ -516,7 +516,10 @@ def calibrate_cmd(
         list[Path], typer.Argument(help="Measured logs: sim-trace CSVs, RoboMaker logs, plain CSVs, folders.")
     ],
     apply: Annotated[
-        Path | None, typer.Option("--apply", help="Score this car.json on LOGS instead of fitting.")
+        str | None, typer.Option("--apply", help="Score this car (NAME|FILE: a preset or a car.json) on LOGS.")
+    ] = None,
+    car: Annotated[
+        str | None, typer.Option("--car", help="Fit on top of this car (NAME|FILE), keeping its design values.")
     ] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Write the fitted calibration (car.json) here.")] = None,
     json_out: Annotated[str | None, typer.Option("--json", help="Write the report as JSON to F (- = stdout).")] = None,
@@ -536,7 +539,7 @@ def calibrate_cmd(
     try:
         # Progress goes to stderr, so that --json - leaves standard output to the JSON alone.
         progress = Console(stderr=True, highlight=False).print
-        report = run_calibrate(logs, apply, out, png, effects, track, max_windows, progress, timing)
+        report = run_calibrate(logs, apply, out, png, effects, track, max_windows, progress, timing, base=car)
     except _user_errors() as exc:
         fail(str(exc).splitlines()[0])
     if json_out != "-":
@@ -546,8 +549,9 @@ def calibrate_cmd(
             table.add_row(f"{key.split('_')[0]} ({unit})", f"{b:.3f}", f"{a:.3f}", f"{100 * (1 - a / b):.0f}%")
         console.print(table)
         for e in report["effects"]:
+            errors = e.get("stderr") or {}
             values = ", ".join(
-                f"{k} = {v:.3g} ± {e.get('stderr', {}).get(k, float('nan')):.2g}" for k, v in e["params"].items()
+                f"{k} = {v:.3g}" + (f" ± {errors[k]:.2g}" if k in errors else "") for k, v in e["params"].items()
             )
             console.print(f"  {e['name']}: {values}")
     write_json(report, json_out)

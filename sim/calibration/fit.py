@@ -18,6 +18,11 @@ The procedure (:func:`calibrate`):
 
 The cost: each channel's mean squared residual (position, heading, speed) divided by the uncalibrated car's on
 the fit windows, summed, so the uncalibrated car scores 3 on the fit windows and each channel weighs the same.
+
+A base car (``calibrate(base=...)``, e.g. a design read from DeepRacer's simapp, ``sim/cars/design/``) is the
+start instead of the car as modelled: its model properties (masses, inertias, drives) stay; its other effects
+are refitted first and with every candidate, then effects are chosen on top as above. "Before" in the report
+is still the car as modelled, so that every score compares with the default car.
 """
 
 from __future__ import annotations
@@ -283,19 +288,31 @@ def select_effects(
 ) -> tuple[CarCalibration, list[Round]]:
     """Forward selection of effects by held-out cost (see the module docstring); returns the calibration.
 
-    ``base``: the car to start from (e.g. one built from its design); its effects stay as they are, and are
-    not candidates."""
+    ``base``: the car to start from (one built from its design). Its model properties that trajectories cannot
+    tell apart (masses, inertias, drives: effects that are not candidates) stay as they are; its other effects
+    (e.g. the design's tyre friction and steering lag) are starting values, refitted with every effect tried
+    and chosen, as effects are refitted once chosen. No candidate is an effect the base already has."""
     base = base or CarCalibration()
+    refit = [e.name for e in base.effects if EFFECTS[e.name].candidate]
     remaining = [c for c in (candidates or CANDIDATE_EFFECTS) if not base.has(c)]
     chosen: list[str] = []
     current = base
     current_cost = sel_obj.cost(current)
     rounds: list[Round] = []
+    if refit:
+        # The design's values, refitted on the logs first: they are parameters already (no penalty to pay),
+        # kept if the held-out windows agree.
+        fit = fit_effects(fit_obj, refit, current)
+        cost = sel_obj.cost(fit.calibration)
+        progress(f"refit the base car's {', '.join(refit)}: held-out cost {cost:.3f} (base {current_cost:.3f})")
+        if cost < current_cost:
+            current, current_cost = fit.calibration, cost
     while remaining:
         tried = []
         for name in remaining:
-            # Screening: fit only the candidate's parameters, the chosen effects held at their values.
-            fit = fit_effects(fit_obj, [*chosen, name], current, free=[name])
+            # Screening: fit only the candidate's parameters (and the base values being refitted), the chosen
+            # effects held at their values.
+            fit = fit_effects(fit_obj, [*refit, *chosen, name], current, free=[*refit, name])
             tried.append(
                 {
                     "name": name,
@@ -321,7 +338,7 @@ def select_effects(
         current, current_cost = best["calibration"], best["select_cost"]
         # Then all chosen effects are refitted together (a new effect changes what the others should be),
         # and the joint fit is kept only if it also does better on the held-out windows.
-        joint = fit_effects(fit_obj, chosen, current)
+        joint = fit_effects(fit_obj, [*refit, *chosen], current)
         joint_cost = sel_obj.cost(joint.calibration)
         if joint_cost < current_cost:
             current, current_cost = joint.calibration, joint_cost
@@ -331,10 +348,10 @@ def select_effects(
 
 
 def with_stderr(objective: Objective, cal: CarCalibration, base: CarCalibration | None = None) -> CarCalibration:
-    """The calibration with the standard errors of all its parameters (but the base car's, which are not
-    fitted), estimated jointly at its values."""
+    """The calibration with the standard errors of all its fitted parameters, estimated jointly at its values
+    (effects it has as the base car has them were not fitted, and get none)."""
     base = base or CarCalibration()
-    fitted = [e.name for e in cal.effects if not base.has(e.name)]
+    fitted = [e.name for e in cal.effects if not base.has(e.name) or e.params != _params(base, e.name)]
     if not fitted:
         return cal
     keys = _param_keys(fitted)
@@ -345,6 +362,10 @@ def with_stderr(objective: Objective, cal: CarCalibration, base: CarCalibration 
         return objective.vector(objective.residual(_to_calibration(keys, v, None, cal)))
 
     return _to_calibration(keys, x, _standard_errors(vector, x, vector(x), specs, objective.clusters()), cal)
+
+
+def _params(cal: CarCalibration, name: str) -> dict[str, float]:
+    return next(e.params for e in cal.effects if e.name == name)
 
 
 def _prune(
@@ -457,7 +478,48 @@ def score(
         k: _reduction(report["error_before"][k], report["error_after"][k])
         for k in ("position_m", "heading_deg", "speed_mps")
     }
+    report["path_time"] = path_time(windows, meas, {"before": before, "after": after})
     return Result(calibration, report, windows, {"measured": meas, "before": before, "after": after})
+
+
+def path_time(windows: Windows, meas: dict[str, np.ndarray], sims: dict[str, dict[str, np.ndarray]]) -> dict:
+    """How long each car takes over the logged paths, from windows that do not overlap (those of :func:`score`):
+    each window's simulated end point, projected onto the measured path (extended straight past its end), is
+    ahead of (or behind) the measured end by an arc length ``ds``, worth ``-ds / v`` seconds at the window's
+    measured mean speed ``v``; the sum over the windows, added to the measured time they span, is the simulated
+    car's time over the same path. Over complete laps this compares lap times. Not a closed-loop lap: each
+    window restarts from the measured state, and the commands are the logged ones."""
+    durations = windows.durations()
+    span = float(durations.sum())
+    steps = np.hypot(np.diff(meas["x"], axis=1), np.diff(meas["y"], axis=1))
+    v = steps.sum(axis=1) / durations.sum(axis=1)
+    moving = v > 0.1  # a window of a car at rest says nothing about its pace
+    out = {"measured_s": round(span, 3), "windows": int(moving.sum())}
+    for key, sim in sims.items():
+        ds = np.array(
+            [_arc_past_end(meas["x"][i], meas["y"][i], sim["x"][i, -1], sim["y"][i, -1]) for i in range(len(v))]
+        )
+        out[f"{key}_s"] = round(span - float(np.sum(ds[moving] / v[moving])), 3)
+    return out
+
+
+def _arc_past_end(px: np.ndarray, py: np.ndarray, qx: float, qy: float) -> float:
+    """Arc length along the polyline p (its first and last segments extended) from its end to the point
+    nearest q: positive past the end."""
+    a = np.stack([px[:-1], py[:-1]], axis=1)
+    d = np.stack([np.diff(px), np.diff(py)], axis=1)
+    length = np.hypot(d[:, 0], d[:, 1])
+    keep = length > 1e-9
+    if not keep.any():
+        return 0.0
+    a, d, length = a[keep], d[keep], length[keep]
+    u = ((qx - a[:, 0]) * d[:, 0] + (qy - a[:, 1]) * d[:, 1]) / length**2
+    u[1:] = np.maximum(u[1:], 0.0)  # only the first segment reaches back before the path's start
+    u[:-1] = np.minimum(u[:-1], 1.0)  # only the last one reaches past its end
+    gap = np.hypot(a[:, 0] + u * d[:, 0] - qx, a[:, 1] + u * d[:, 1] - qy)
+    j = int(np.argmin(gap))
+    arc = np.concatenate([[0.0], np.cumsum(length)])
+    return float(arc[j] + u[j] * length[j] - arc[-1])
 
 
 def _reduction(before: float, after: float) -> float:
@@ -525,15 +587,14 @@ def refit(
     max_windows: int = MAX_FIT_WINDOWS,
     timing: str = "auto",
 ) -> CarCalibration:
-    """Fit again, jointly and from their usual starting values, the effects ``car`` has on top of ``base``, on
-    the windows :func:`calibrate` would fit them on: a check that a car file's fitted values follow from its
-    logs (the choice of effects is taken as made)."""
+    """Fit again, jointly and from ``base``, the effects ``car`` was fitted with (those with standard errors),
+    on the windows :func:`calibrate` would fit them on: a check that a car file's values follow from its logs
+    and its base (the choice of effects is taken as made)."""
     if timing == "auto":
         timing = detect_timing(trajectories)
     replayer = Replayer()
     fit_w, _ = fit_windows(split_episodes(trajectories), max_windows, timing)
     scales = channel_scales(residuals(replayer.replay(fit_w), fit_w.measured()))
-    fitted = [e.name for e in car.effects if not base.has(e.name)]
-    return fit_effects(
-        Objective(replayer, fit_w, scales), fitted, base.model_copy(update={"about": car.about})
-    ).calibration
+    fitted = [e.name for e in car.effects if e.stderr]
+    start = base.model_copy(update={"about": car.about})
+    return fit_effects(Objective(replayer, fit_w, scales), fitted, start).calibration
