@@ -224,6 +224,10 @@ def fresh_params(params: dict) -> dict:
 
 def _fresh(value: Any) -> Any:
     if isinstance(value, list):
+        # params' lists are homogeneous: a list of tuples or numbers (waypoints: hundreds of them, every step)
+        # needs only a new list; a list of lists (objects_location) is copied a level deeper.
+        if not value or not isinstance(value[0], list | dict):
+            return value.copy()
         return [_fresh(v) for v in value]
     if isinstance(value, dict):
         return {k: _fresh(v) for k, v in value.items()}

@@ -81,6 +81,10 @@ class RacingTask:
         self._road = road or track.on_track
         self._reversed_track = track.reversed()
         self._lines = {False: _WaypointLine(track, False), True: _WaypointLine(self._reversed_track, True)}
+        self._borders = {
+            reverse: (_segments(t.inner), _segments(t.outer))
+            for reverse, t in ((False, track), (True, self._reversed_track))
+        }
         self.state: EpisodeState | None = None
 
     @property
@@ -181,8 +185,9 @@ class RacingTask:
         lateral = float(proj.lateral[0])
         s = float(proj.s[0])
         foot = _foot(track, proj)
-        inner = _nearest_on_border(track.inner, foot, int(proj.segment[0]), track.closed)
-        outer = _nearest_on_border(track.outer, foot, int(proj.segment[0]), track.closed)
+        inner_segments, outer_segments = self._borders[st.reversed]
+        inner = _nearest_on_border(inner_segments, foot, int(proj.segment[0]), track.closed)
+        outer = _nearest_on_border(outer_segments, foot, int(proj.segment[0]), track.closed)
         heading = math.degrees(math.atan2(math.sin(pose.yaw), math.cos(pose.yaw)))
         if heading <= -180.0:  # DeepRacer's range is (-180, 180]
             heading += 360.0
@@ -258,13 +263,23 @@ def _foot(track: Track, proj) -> tuple[float, float]:
     return float(a[0] + t * (b[0] - a[0])), float(a[1] + t * (b[1] - a[1]))
 
 
-def _nearest_on_border(border: np.ndarray, point: tuple[float, float], hint: int, closed: bool) -> tuple[float, float]:
+Segments = list[tuple[float, float, float, float, float]]
+"""A polyline's segments as plain floats (start x, start y, vector x, vector y, 1 / squared length)."""
+
+
+def _segments(border: np.ndarray) -> Segments:
+    """A border's segments as plain floats: the per-step search below runs on them without numpy's overhead."""
+    a, v = border[:-1], np.diff(border, axis=0)
+    length2 = np.einsum("ij,ij->i", v, v)
+    inv = np.where(length2 > 0, 1.0 / np.where(length2 > 0, length2, 1.0), 0.0)
+    return [tuple(map(float, row)) for row in np.column_stack([a, v, inv])]
+
+
+def _nearest_on_border(segments: Segments, point: tuple[float, float], hint: int, closed: bool) -> tuple[float, float]:
     """The point of a border polyline nearest ``point`` (shapely's ``interpolate(project(point))`` in the simapp).
 
-    Searched within a few segments of the centre line's segment (border row i faces centre row i); a border far
-    from its centre-line row (a hairpin's inside) is searched whole.
-    """
-    n_seg = len(border) - 1
+    Searched within six segments either side of the centre line's segment (border row i faces centre row i)."""
+    n_seg = len(segments)
     window = range(hint - 6, hint + 7) if n_seg > 13 else range(n_seg)
     best, best_d2 = point, math.inf
     px, py = point
@@ -273,15 +288,12 @@ def _nearest_on_border(border: np.ndarray, point: tuple[float, float], hint: int
             j %= n_seg
         elif not 0 <= j < n_seg:
             continue
-        ax, ay = border[j]
-        bx, by = border[j + 1]
-        vx, vy = bx - ax, by - ay
-        length2 = vx * vx + vy * vy
-        t = 0.0 if length2 == 0 else min(max(((px - ax) * vx + (py - ay) * vy) / length2, 0.0), 1.0)
+        ax, ay, vx, vy, inv = segments[j]
+        t = min(max(((px - ax) * vx + (py - ay) * vy) * inv, 0.0), 1.0)
         fx, fy = ax + t * vx, ay + t * vy
-        d2 = (px - fx) ** 2 + (py - fy) ** 2
+        d2 = (px - fx) * (px - fx) + (py - fy) * (py - fy)
         if d2 < best_d2:
-            best, best_d2 = (float(fx), float(fy)), d2
+            best, best_d2 = (fx, fy), d2
     return best
 
 
