@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sim.physics import FRONT_POINT_M, Pose
-from sim.track import Track
+from sim.track import Segment, Track, nearest_segment, polyline_segments
 
 REVERSED_WINDOW_STEPS = 15
 """Window (steps, 1 s at 15 Hz) over which going backwards or standing still ends an episode."""
@@ -82,7 +82,7 @@ class RacingTask:
         self._reversed_track = track.reversed()
         self._lines = {False: _WaypointLine(track, False), True: _WaypointLine(self._reversed_track, True)}
         self._borders = {
-            reverse: (_segments(t.inner), _segments(t.outer))
+            reverse: (polyline_segments(t.inner), polyline_segments(t.outer))
             for reverse, t in ((False, track), (True, self._reversed_track))
         }
         self.state: EpisodeState | None = None
@@ -263,38 +263,15 @@ def _foot(track: Track, proj) -> tuple[float, float]:
     return float(a[0] + t * (b[0] - a[0])), float(a[1] + t * (b[1] - a[1]))
 
 
-Segments = list[tuple[float, float, float, float, float]]
-"""A polyline's segments as plain floats (start x, start y, vector x, vector y, 1 / squared length)."""
-
-
-def _segments(border: np.ndarray) -> Segments:
-    """A border's segments as plain floats: the per-step search below runs on them without numpy's overhead."""
-    a, v = border[:-1], np.diff(border, axis=0)
-    length2 = np.einsum("ij,ij->i", v, v)
-    inv = np.where(length2 > 0, 1.0 / np.where(length2 > 0, length2, 1.0), 0.0)
-    return [tuple(map(float, row)) for row in np.column_stack([a, v, inv])]
-
-
-def _nearest_on_border(segments: Segments, point: tuple[float, float], hint: int, closed: bool) -> tuple[float, float]:
+def _nearest_on_border(
+    segments: list[Segment], point: tuple[float, float], hint: int, closed: bool
+) -> tuple[float, float]:
     """The point of a border polyline nearest ``point`` (shapely's ``interpolate(project(point))`` in the simapp).
 
     Searched within six segments either side of the centre line's segment (border row i faces centre row i)."""
-    n_seg = len(segments)
-    window = range(hint - 6, hint + 7) if n_seg > 13 else range(n_seg)
-    best, best_d2 = point, math.inf
-    px, py = point
-    for j in window:
-        if closed:
-            j %= n_seg
-        elif not 0 <= j < n_seg:
-            continue
-        ax, ay, vx, vy, inv = segments[j]
-        t = min(max(((px - ax) * vx + (py - ay) * vy) * inv, 0.0), 1.0)
-        fx, fy = ax + t * vx, ay + t * vy
-        d2 = (px - fx) * (px - fx) + (py - fy) * (py - fy)
-        if d2 < best_d2:
-            best, best_d2 = (fx, fy), d2
-    return best
+    j, t, _, _ = nearest_segment(segments, point[0], point[1], hint, 6, closed)
+    sx, sy, vx, vy, _ = segments[j]
+    return sx + t * vx, sy + t * vy
 
 
 def _wrap(ds: float, track: Track) -> float:

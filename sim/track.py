@@ -254,15 +254,8 @@ class Track:
         return self._project(pts, np.arange(n_seg))
 
     @cached_property
-    def _flat(self) -> tuple[np.ndarray, ...]:
-        start, vec, length = self._seg
-        return start[:, 0].copy(), start[:, 1].copy(), vec[:, 0].copy(), vec[:, 1].copy(), 1.0 / length**2
-
-    @cached_property
-    def _segment_list(self) -> list[tuple[float, float, float, float, float, float]]:
-        start, vec, length = self._seg
-        rows = np.column_stack([start, vec, 1.0 / length**2, self.cumulative[:-1]])
-        return [tuple(r) for r in rows.tolist()]
+    def _segment_list(self) -> list[Segment]:
+        return polyline_segments(self.center)
 
     def project_point(self, x: float, y: float, hint: int, window: int = 8) -> Projection:
         """``project`` for one point near segment ``hint``: the per-step fast path.
@@ -271,26 +264,13 @@ class Track:
         than numpy, whose per-call overhead dominates on arrays this small.
         """
         segs = self._segment_list
-        n_seg = len(segs)
-        if 2 * window + 1 >= n_seg:
+        if 2 * window + 1 >= len(segs):
             return self.project(np.array([[x, y]]))
-        best, best_d2, best_t, best_cross = -1, math.inf, 0.0, 0.0
-        for j in range(hint - window, hint + window + 1):
-            if self.closed:
-                j %= n_seg
-            elif not 0 <= j < n_seg:
-                continue
-            sx, sy, vx, vy, inv2, _ = segs[j]
-            rx, ry = x - sx, y - sy
-            t = min(max((rx * vx + ry * vy) * inv2, 0.0), 1.0)
-            dx, dy = rx - t * vx, ry - t * vy
-            d2 = dx * dx + dy * dy
-            if d2 < best_d2:
-                best, best_d2, best_t, best_cross = j, d2, t, vx * ry - vy * rx
+        best, best_t, best_d2, best_cross = nearest_segment(segs, x, y, hint, window, self.closed)
         lateral = math.copysign(math.sqrt(best_d2), best_cross) if best_cross != 0 else 0.0
         if abs(lateral) >= self.widths.max():  # lost (e.g. a jump): search everything
             return self.project(np.array([[x, y]]))
-        s = segs[best][5] + best_t * self._seg[2][best]
+        s = float(self.cumulative[best]) + best_t * self._seg[2][best]
         return Projection(s=np.array([s]), lateral=np.array([lateral]), segment=np.array([best]), t=np.array([best_t]))
 
     def _project(self, pts: np.ndarray, segments: np.ndarray) -> Projection:
@@ -346,6 +326,42 @@ class Track:
         """(min_xy, max_xy) of everything drawn for the track, metres."""
         xy = self.waypoints.reshape(-1, 2)
         return xy.min(axis=0), xy.max(axis=0)
+
+
+Segment = tuple[float, float, float, float, float]
+"""A polyline segment as plain floats: start x, start y, vector x, vector y, 1 / squared length (0 if empty)."""
+
+
+def polyline_segments(poly: np.ndarray) -> list[Segment]:
+    """The segments of an (N, 2) polyline as plain floats, for per-step searches that numpy's overhead would slow."""
+    start, vec = poly[:-1], np.diff(poly, axis=0)
+    length2 = np.einsum("ij,ij->i", vec, vec)
+    inv = np.divide(1.0, length2, out=np.zeros_like(length2), where=length2 > 0)
+    return [tuple(row) for row in np.column_stack([start, vec, inv]).tolist()]
+
+
+def nearest_segment(
+    segments: list[Segment], x: float, y: float, hint: int, window: int, closed: bool
+) -> tuple[int, float, float, float]:
+    """Among the segments within ``window`` of ``hint`` (all of them when the window covers the polyline), the one
+    nearest (x, y): (its index, the fraction t along it of the nearest point, the squared distance, and the cross
+    product of the segment with the point, positive to its left)."""
+    n_seg = len(segments)
+    indices = range(n_seg) if 2 * window + 1 >= n_seg else range(hint - window, hint + window + 1)
+    best, best_d2, best_t, best_cross = -1, math.inf, 0.0, 0.0
+    for j in indices:
+        if closed:
+            j %= n_seg
+        elif not 0 <= j < n_seg:
+            continue
+        sx, sy, vx, vy, inv2 = segments[j]
+        rx, ry = x - sx, y - sy
+        t = min(max((rx * vx + ry * vy) * inv2, 0.0), 1.0)
+        dx, dy = rx - t * vx, ry - t * vy
+        d2 = dx * dx + dy * dy
+        if d2 < best_d2:
+            best, best_d2, best_t, best_cross = j, d2, t, vx * ry - vy * rx
+    return best, best_t, best_d2, best_cross
 
 
 def _near_polyline(pts: np.ndarray, poly: np.ndarray, closed: bool, tol: float = 1e-9) -> np.ndarray:
