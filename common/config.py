@@ -147,6 +147,11 @@ class EnvConfig(_Strict):
     Held inline, so a run's config.json carries it to every worker; no effects = the car as modelled."""
 
 
+class PretrainedError(ValueError):
+    """A run's ``pretrained`` source it cannot start from (missing, another action space, other network shapes);
+    the one-line message names the source and what differs. Raised before start and by the trainer's load."""
+
+
 class RunConfig(_Strict):
     """Everything that defines a training run; stored as ``config.json`` in the run so that every process
     (and a worker on another machine) builds the same world and network."""

@@ -69,12 +69,11 @@ def drfc_lines(drfc: DrfcImport | None) -> list[str]:
 
 def check_files(inputs: UserFiles) -> list[str]:
     """Validate as ``racer train`` does (raising its one-line errors) and describe each file in one line."""
-    from common.action_space import default_action_space, load_action_space
-    from common.hyperparams import Hyperparameters, load_hyperparameters
+    from common.action_space import ActionSpace
     from racer.runconfig import build_run
 
     notes: list[str] = []
-    run, _ = build_run(
+    run, files = build_run(
         "racer-check",
         inputs.track,
         inputs.reward_fn,
@@ -83,8 +82,9 @@ def check_files(inputs: UserFiles) -> list[str]:
         notes=notes,
         randomization_update=inputs.randomization,
     )
-    actions = load_action_space(inputs.action_space) if inputs.action_space else default_action_space()
-    hp = load_hyperparameters(inputs.hyperparams) if inputs.hyperparams else Hyperparameters()
+    # What build_run read and checked, not the files read a second time.
+    actions = ActionSpace.model_validate_json(files["model_metadata.json"])
+    hp = run.hyperparams
     kind = f"{actions.n} discrete actions" if actions.discrete else "a continuous action space"
     lines = [
         f"{inputs.reward_fn or 'reward function (racer default)'}: ran on {run.env.track} in a throwaway env: ok",

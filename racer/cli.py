@@ -169,14 +169,14 @@ def train_cmd(
         track, workers = inputs.track, workers or inputs.workers or 2
         eval_episodes = inputs.eval_episodes if eval_episodes == 3 and inputs.eval_episodes else eval_episodes
         rid = run_id or inputs.run_id or new_run_id()
+        if resume and not run_id:
+            fail("--resume needs --run-id")
+        runs = RunStore(open_store(store, s3_endpoint))
         if resume:
-            if not run_id:
-                fail("--resume needs --run-id")
-            runs = RunStore(open_store(store, s3_endpoint))
             run = RunConfig.model_validate_json(runs.read_file(rid, "config.json"))
             files: dict[str, bytes] = {}
         else:
-            if RunStore(open_store(store, s3_endpoint)).newest_whole(rid) is not None:
+            if runs.newest_whole(rid) is not None:
                 fail(f"run {rid!r} already exists in {store}: add --resume to continue it, or choose another --run-id")
             notes: list[str] = []
             run, files = build_run(
@@ -195,7 +195,7 @@ def train_cmd(
             run = run.model_copy(update={"max_policy_lag": max_policy_lag, "segment_steps": segment_steps})
             source = pretrained or inputs.pretrained
             if source:
-                run = check_pretrained(RunStore(open_store(store, s3_endpoint)), run, files, source)
+                run = check_pretrained(runs, run, files, source)
             for line in notes + drfc_lines(inputs.drfc):
                 console.print(line, highlight=False, soft_wrap=True)
         opts = TrainOptions(

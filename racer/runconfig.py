@@ -7,7 +7,14 @@ from pathlib import Path
 
 from common.action_space import ActionSpace, default_action_space, load_action_space
 from common.car_calibration import CarCalibration, load_car
-from common.config import EnvConfig, PolicyConfig, RandomizationConfig, RunConfig, network_from_metadata
+from common.config import (
+    EnvConfig,
+    PolicyConfig,
+    PretrainedError,
+    RandomizationConfig,
+    RunConfig,
+    network_from_metadata,
+)
 from common.hyperparams import Hyperparameters, load_hyperparameters
 from common.jsonfile import load_json_model
 from model_store import RunStore, StoreError
@@ -76,10 +83,6 @@ class RandomizationFileError(ValueError):
 def load_randomization(path: str | Path) -> RandomizationConfig:
     """Read a randomization JSON file; RandomizationFileError naming the file and the bad field."""
     return load_json_model(path, "randomization file", RandomizationConfig, RandomizationFileError)
-
-
-class PretrainedError(ValueError):
-    """A pretrained/clone source that this run cannot start from; the message names it and what differs."""
 
 
 def check_pretrained(runs: RunStore, run: RunConfig, files: dict[str, bytes], ref: str) -> RunConfig:

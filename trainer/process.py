@@ -27,7 +27,7 @@ from pathlib import Path
 
 import torch
 
-from common.config import RunConfig, check_precision
+from common.config import PretrainedError, RunConfig, check_precision
 from common.keys import Keys
 from common.policy import (
     ActorCritic,
@@ -48,10 +48,6 @@ from trainer.evaluator import evaluation_key
 from trainer.ppo import PPOBatch, compute_gae, scheduled, update
 
 log = logging.getLogger("racer.trainer")
-
-
-class PretrainedError(ValueError):
-    """A pretrained checkpoint whose network does not fit this run's."""
 
 
 METRICS_FILE = "metrics.jsonl"
