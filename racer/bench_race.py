@@ -27,8 +27,10 @@ from typing import Any
 from rich.console import Console
 
 from common.car_calibration import load_car
+from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
+from racer.plots import read_evaluations, read_metrics
 from racer.runconfig import build_run
 from sim.reward import example_path
 
@@ -64,18 +66,20 @@ def _files(folder: Path) -> tuple[Path, Path]:
     return space, hp
 
 
-def _rows(run_dir: Path) -> list[dict]:
-    path = run_dir / "metrics.jsonl"
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
+def _rows(run_id: str, runs: RunStore) -> list[dict]:
+    """The run's metrics rows (none when it never finished an update)."""
+    try:
+        return read_metrics(run_id, runs)
+    except ValueError:
+        return []
 
 
-def race_curve(run_dir: Path, t0: float) -> list[dict]:
+def race_curve(run_id: str, runs: RunStore, t0: float) -> list[dict]:
     """Per evaluated checkpoint, in version order: version, time made (s from ``t0``), env steps, completion,
     mean and best lap (s)."""
-    made = {int(r["policy_version"]): (float(r["time"]) - t0, int(r["env_steps"])) for r in _rows(run_dir)}
+    made = {int(r["policy_version"]): (float(r["time"]) - t0, int(r["env_steps"])) for r in _rows(run_id, runs)}
     curve = []
-    for path in sorted((run_dir / "evaluations").glob("*.json")):
-        record = json.loads(path.read_text())
+    for record in read_evaluations(run_id, runs):
         version = int(record["version"])
         if version not in made:
             continue
@@ -133,9 +137,9 @@ def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float) -> dict[str
         )
         t0 = time.time()
         run_train(run, opts, files, Console(file=io.StringIO()))
-        run_dir = Path(tmp, "store", "runs", run_id)
-        curve = race_curve(run_dir, t0)
-        rows = _rows(run_dir)
+        runs = RunStore(LocalStore(Path(tmp, "store")))
+        curve = race_curve(run_id, runs, t0)
+        rows = _rows(run_id, runs)
     figures = seed_figures(curve, limit_s)
     figures.update(seed=seed, rollbacks=int(rows[-1].get("rollbacks", 0)) if rows else 0, curve=curve)
     return figures
