@@ -591,8 +591,9 @@ def limit_cmd(
             highlight=False,
         )
         console.print(
-            "driven by pure pursuit in the env: "
+            "driven in the env by a predictive line follower: "
             + (f"{driven:.2f} s ({100 * (ratio - 1):+.1f} % of the limit)" if driven else report["driven_status"])
+            + (f" at {100 * report['driven_pace']:.0f} % of the profile's speeds" if report["driven_pace"] < 1 else "")
             + f"; {report['seconds']['total']:.1f} s in all",
             highlight=False,
         )

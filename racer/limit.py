@@ -1,7 +1,7 @@
 """``racer limit``: the minimum lap time a car can do on a track, its racing line and speed profile, and a lap
 driven on that line in the real env by a classical controller to show the limit can be reached.
 
-The parts: ``sim.car_limits`` measures the car, ``sim.raceline`` finds the line and its profile, ``sim.pursuit``
+The parts: ``sim.car_limits`` measures the car, ``sim.raceline`` finds the line and its profile, ``sim.follower``
 drives it. This module ties them together, writes the JSON and the PNG.
 """
 
@@ -16,8 +16,8 @@ import numpy as np
 from common.action_space import load_action_space
 from common.car_calibration import CarCalibration, load_car
 from sim.car_limits import CarLimits, measure_limits
+from sim.follower import DrivenLap, drive_line
 from sim.physics import SPEED_RANGE_MPS
-from sim.pursuit import DrivenLap, drive_line
 from sim.raceline import DEFAULT_MARGIN_M, RacingLine, racing_line
 from sim.track import load_track
 
@@ -66,6 +66,10 @@ def _report(
         "driven_lap_time_s": driven.lap_time,
         "driven_status": driven.status,
         "driven_progress": driven.progress,
+        "driven_pace": driven.pace,
+        # The quasi-steady profile misses what a car does between steady states (a car that turns tighter while
+        # braking than on a steady circle); where the driven lap beats it, that lap is the better figure.
+        "best_known_lap_s": line.lap_time if driven.lap_time is None else min(line.lap_time, driven.lap_time),
         "driven_over_limit": ratio,
         "line_length_m": line.length,
         "margin_m": margin,

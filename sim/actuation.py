@@ -17,6 +17,7 @@ is the batch form the calibration replay uses, and the env steps :meth:`Actuatio
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -143,6 +144,14 @@ class Actuation:
     def reset(self) -> None:
         """Back to rest: wheels straight, speed target zero, nothing in the dead times."""
         self._state = initial_state(self.params, self.substep_s)
+
+    def save(self) -> ActuationState:
+        """A copy of the effects' memory (for :meth:`load`)."""
+        return copy.deepcopy(self._state)
+
+    def load(self, state: ActuationState) -> None:
+        """Back to a saved memory (copied: the saved one stays as it was)."""
+        self._state = copy.deepcopy(state)
 
     def step(self, steering_deg: float, speed_mps: float, substeps: int) -> tuple[np.ndarray, np.ndarray]:
         """Servo targets for each of ``substeps`` physics steps holding this command."""

@@ -9,7 +9,9 @@ the way the env drives it:
   and the mean curvature of its last 2 s counts unless it slid (rear axle slipping sideways), lost speed or
   tipped; the figure is where the car still follows a curve before it slides. Its lateral acceleration
   a = v² κ is reported beside it;
-- the smallest turning radius at the steering limit, at the lowest speed.
+- the smallest turning radius at the steering limit, at the lowest speed;
+- how fast the steering follows a command: the time the wheels take to turn 63 % of a 20° step (a first-order
+  lag's time constant; DeepRacer's Gazebo car takes about half a second, the default car a few hundredths).
 """
 
 from __future__ import annotations
@@ -65,6 +67,8 @@ class CarLimits:
     """Turning radius at the steering limit at the lowest speed, m."""
     max_command_speed: float
     """The highest speed command the limits were measured for (the action space's), m/s."""
+    steering_tau_s: float = 0.0
+    """Time the wheels take to turn 63 % of a steering step, s (the controller's model of the steering lag)."""
 
     def to_dict(self) -> dict:
         """JSON-ready figures (what ``racer limit --json`` stores, so others can recompute the profile)."""
@@ -211,12 +215,37 @@ def measure_limits(car: CarCalibration | None = None, max_command_speed: float =
         steering=[float(d) for d in STEER_GRID_DEG],
         curvature_by_steering=[[float(k) for k in row] for row in held],
         max_lateral_accel=[float(v * v * k) for v, k in zip(grid, curvature, strict=True)],
-        min_turn_radius=_min_turn_radius(physics),
+        min_turn_radius=_min_turn_radius(physics, held),
         max_command_speed=top_command,
+        steering_tau_s=_steering_time_constant(physics),
     )
 
 
-def _min_turn_radius(physics: CarPhysics) -> float:
-    """Turning radius at full lock at a walking pace (0.3 m/s), m."""
-    held = _held_curvature(physics, SPEED_RANGE_MPS[0] * 3, MAX_STEERING_DEG)
-    return math.inf if not held else 1.0 / held[1]
+def _min_turn_radius(physics: CarPhysics, held: np.ndarray) -> float:
+    """Turning radius at full lock at a walking pace (0.3 m/s), m; where that trial fails (a car whose steering
+    lag or scrub keeps it from settling), the tightest curve of the table's lowest speed."""
+    trial = _held_curvature(physics, SPEED_RANGE_MPS[0] * 3, MAX_STEERING_DEG)
+    kappa = trial[1] if trial else float(np.max(held[0]))
+    return 1.0 / kappa if kappa > 0 else math.inf
+
+
+STEP_DEG = 20.0
+"""Size of the steering step whose response gives :attr:`CarLimits.steering_tau_s`, degrees."""
+
+
+def _steering_time_constant(physics: CarPhysics) -> float:
+    """Seconds the wheels take to reach 63 % (1 - 1/e) of a 20° step commanded at 1 m/s, interpolated between
+    control periods; the angle after 2 s counts as the end of the step."""
+    physics.reset(Pose(0.0, 0.0, 0.0))
+    for _ in range(int(CONTROL_HZ)):  # 1 s straight at 1 m/s first
+        physics.command(0.0, 1.0)
+        physics.step()
+    angles = [physics.steering_deg]
+    for _ in range(int(2 * CONTROL_HZ)):
+        physics.command(STEP_DEG, 1.0)
+        physics.step()
+        angles.append(physics.steering_deg)
+    a = np.array(angles) - angles[0]
+    target = (1.0 - math.exp(-1.0)) * a[-1]
+    k = int(np.argmax(a >= target))  # the first period at or past 63 %; a[0] = 0 is below it
+    return float((k - 1 + (target - a[k - 1]) / (a[k] - a[k - 1])) / CONTROL_HZ)

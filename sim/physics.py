@@ -45,6 +45,16 @@ class Pose:
         return np.array([self.x + distance * math.cos(self.yaw), self.y + distance * math.sin(self.yaw)])
 
 
+@dataclass(frozen=True)
+class PhysicsSnapshot:
+    """A saved state of one :class:`CarPhysics` (see :meth:`CarPhysics.snapshot`)."""
+
+    data: mujoco.MjData
+    target: tuple[float, float]
+    effects: object | None
+    """The calibrated effects' state (``sim.actuation``'s), None for a car without them."""
+
+
 def yaw_of_quaternion(w, x, y, z):
     """Yaw (rad) of a MuJoCo quaternion (w, x, y, z): floats, or numpy arrays element by element."""
     return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
@@ -133,6 +143,22 @@ class CarPhysics:
         self._target = (0.0, 0.0)
         if self._actuation is not None:
             self._actuation.reset()
+
+    def snapshot(self) -> PhysicsSnapshot:
+        """Everything the car's future depends on: the MuJoCo state, the command held and the effects' memory.
+        :meth:`restore` puts it back bit for bit, so a controller may try commands ahead and leave no trace."""
+        data = mujoco.MjData(self.model)
+        mujoco.mj_copyData(data, self.model, self.data)
+        effects = None if self._actuation is None else self._actuation.save()
+        return PhysicsSnapshot(data, self._target, effects)
+
+    def restore(self, snapshot: PhysicsSnapshot) -> None:
+        """Back to a :meth:`snapshot` of this car (the snapshot stays usable for further restores)."""
+        mujoco.mj_copyData(self.data, self.model, snapshot.data)
+        self._target = snapshot.target
+        if self._actuation is not None:
+            self._actuation.load(snapshot.effects)
+        self._pose = None
 
     def set_dynamics(self, friction_scale: float = 1.0, mass_scale: float = 1.0) -> None:
         """Scale tyre friction and all body masses (domain randomization); 1.0 restores the car as calibrated."""

@@ -72,6 +72,8 @@ class RacingLine:
     """Standing-start lap time, s."""
     flying_lap_time: float
     """Flying lap time, s."""
+    corridor: Corridor
+    """Where the line may go (its offsets are measured from ``corridor.center`` along ``corridor.normal``)."""
 
     @property
     def length(self) -> float:
@@ -240,4 +242,4 @@ def racing_line(track: Track, limits: CarLimits, margin: float = DEFAULT_MARGIN_
     curvature = _curvature(points)
     speed, lap = speed_profile(ds, curvature, limits, v_start=0.0)
     flying, flying_lap = speed_profile(ds, curvature, limits, v_start=None)
-    return RacingLine(points, offsets, ds, curvature, speed, flying[:-1], lap, flying_lap)
+    return RacingLine(points, offsets, ds, curvature, speed, flying[:-1], lap, flying_lap, cor)

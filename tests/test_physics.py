@@ -114,3 +114,32 @@ def test_env_render_rgb_array_shows_the_track():
     img = env.render()
     assert img.ndim == 3 and img.shape[2] == 3 and img.shape[1] == 800
     assert (img == (220, 30, 30)).all(axis=2).sum() > 20  # the car is drawn
+
+
+def test_snapshot_restores_the_car_bit_for_bit_with_its_effects_memory():
+    """A controller may try commands ahead on the car itself (racer limit's line follower): after ``restore`` the
+    same commands give the same states, the lagged steering included."""
+    from common.car_calibration import load_car
+    from sim.car_limits import _plain_physics
+
+    car = _plain_physics(load_car("deepracer-gazebo"))  # a 0.5 s steering lag and a speed lag: state to keep
+    car.reset(Pose(0.0, 0.0, 0.0))
+    for _ in range(10):
+        car.command(20.0, 2.0)
+        car.step()
+    saved = car.snapshot()
+
+    def drive() -> np.ndarray:
+        for _ in range(8):
+            car.command(-25.0, 3.0)
+            car.step()
+        return car.data.qpos.copy()
+
+    first = drive()
+    car.restore(saved)
+    assert car.steering_deg > 5.0  # back where the wheels were turning left, not where the trial left them
+    assert np.array_equal(drive(), first)
+    car.restore(saved)
+    car.command(20.0, 2.0)  # the snapshot's own continuation differs from the trial's
+    car.step()
+    assert not np.array_equal(car.data.qpos, first)

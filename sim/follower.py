@@ -1,0 +1,279 @@
+"""A classical controller that drives a racing line in the real env: it checks that a computed lap-time limit can
+be driven (``racer limit``'s driven lap).
+
+The speed command is the line's speed profile a little ahead (the command acts on the next control period and the
+wheels need a moment), divided by the car's speed-per-command ratio (its wheels slip slightly).
+
+The steering is a small model-predictive controller, because a geometric follower cannot drive a car whose
+steering lags: DeepRacer's Gazebo car turns its wheels with a time constant of half a second, and racer's first
+follower (pure pursuit with a speed-dependent look-ahead) drove it off reInvent2019_track in its first bends.
+Every control period:
+
+1. **Plan** on a kinematic model: the rear axle moves on the curvature that the car's measured trials hold at
+   this speed and steering angle (``CarLimits.curvature_by_steering``, understeer included), the wheels follow
+   the command with the measured steering time constant, the speeds are the profile's. Every pair of steering
+   commands (one for the first third of the horizon, one after it, 13 angles each) is scored by the summed squared
+   distance of the car's centre to the line, plus a steep cost for leaving the line's corridor (the line may run
+   within a few centimetres of the off-track boundary, so a deviation outwards costs far more than one inwards);
+   the horizon is twice the steering time constant plus half a second.
+2. **Check** on the simulator itself: the best plan and its neighbours (±2° on either piece) are driven on the
+   env's own physics from a snapshot, with the speed commands the controller would give, and scored the same way;
+   the snapshot is restored after each. The kinematic model misses what the car does between steady states
+   (sliding, load transfer); the simulator does not.
+3. The best checked plan's first command is sent.
+
+Measured on the eleven bundled loops (README, ``racer limit``): the default car is driven within 4 % of its limit
+on every one (pure pursuit managed 9 of 11 within 5 %). The Gazebo car, driven at its limit, may leave the track
+in one bend and not on a second try a little slower: ``drive_line`` tries the paces of :data:`PACES` in turn.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from common.car_calibration import CarCalibration
+from common.config import EnvConfig
+from sim.car_limits import CarLimits
+from sim.physics import MAX_STEERING_DEG, WHEELBASE_M, CarPhysics
+from sim.raceline import RacingLine
+from sim.world import CONTROL_HZ
+
+PERIOD_S = 1.0 / CONTROL_HZ
+SPEED_LEAD_S = 0.12
+"""How far ahead (in time at the current speed) the speed command reads the profile, s."""
+PLAN_ANGLES = np.linspace(-MAX_STEERING_DEG, MAX_STEERING_DEG, 13)
+"""Steering commands the kinematic plan combines, degrees."""
+HORIZON_LAG_FACTOR, HORIZON_EXTRA_S = 2.0, 0.5
+"""Planning horizon = factor × the steering time constant + extra, s."""
+CHECK_OFFSETS_DEG = (-2.0, 0.0, 2.0)
+"""Offsets added to each piece of the best plan for the simulator check, degrees."""
+CHECK_STEPS = 12
+"""Control periods (0.8 s) each checked plan is driven on the simulator."""
+DENSE_PER_POINT = 5
+"""The line is resampled this many times finer (every 2 cm) for distances."""
+CORRIDOR_WEIGHT = 100.0
+"""Cost of a squared metre outside the corridor, relative to a squared metre off the line."""
+
+
+@dataclass
+class LineFollower:
+    """Steering and speed commands that follow ``line`` (with its standing-start profile)."""
+
+    line: RacingLine
+    limits: CarLimits
+    pace: float = 1.0
+    """Fraction of the profile's speeds the follower commands (below 1 when a lap at full pace left the track)."""
+    _s: np.ndarray = field(init=False, repr=False)
+    _dense: np.ndarray = field(init=False, repr=False)
+    _centre: np.ndarray = field(init=False, repr=False)
+    _normal: np.ndarray = field(init=False, repr=False)
+    _low: np.ndarray = field(init=False, repr=False)
+    _high: np.ndarray = field(init=False, repr=False)
+    _dense_step: float = field(init=False)
+    _kappa: np.ndarray = field(init=False, repr=False)
+    _plans: np.ndarray = field(init=False, repr=False)
+    _split: int = field(init=False)
+    _near: int = field(default=0, init=False)
+
+    def __post_init__(self) -> None:
+        pts = self.line.points
+        self._s = np.concatenate([[0.0], np.cumsum(self.line.ds)])
+        t = np.arange(DENSE_PER_POINT) / DENSE_PER_POINT
+        step = np.roll(pts, -1, axis=0) - pts
+        self._dense = (pts[:, None, :] + t[None, :, None] * step[:, None, :]).reshape(-1, 2)
+        cor = self.line.corridor
+        self._centre = np.repeat(cor.center, DENSE_PER_POINT, axis=0)
+        self._normal = np.repeat(cor.normal, DENSE_PER_POINT, axis=0)
+        self._low, self._high = np.repeat(cor.low, DENSE_PER_POINT), np.repeat(cor.high, DENSE_PER_POINT)
+        self._dense_step = float(np.mean(self.line.ds)) / DENSE_PER_POINT
+        self._kappa = _curvature_grid(self.limits)
+        horizon = math.ceil((HORIZON_LAG_FACTOR * self.limits.steering_tau_s + HORIZON_EXTRA_S) / PERIOD_S)
+        self._split = max(horizon // 3, 1)
+        first, then = np.meshgrid(PLAN_ANGLES, PLAN_ANGLES, indexing="ij")
+        self._plans = np.concatenate(
+            [np.repeat(first.reshape(-1, 1), self._split, 1), np.repeat(then.reshape(-1, 1), horizon - self._split, 1)],
+            axis=1,
+        )
+
+    def command(self, physics: CarPhysics, lap_s: float) -> tuple[float, float]:
+        """(steering_deg, speed_mps) for the car in ``physics``; ``lap_s`` is the distance driven so far this lap,
+        used to read the standing-start profile (the first lap's, then the flying one's)."""
+        pose = physics.pose
+        self._near = self._nearest(np.array([pose.x, pose.y]), self._near)
+        first_lap = lap_s < 0.5 * self._s[-1] or self._s[self._near] > 0.5 * self._s[-1]
+        profile = self.line.speed if first_lap else np.append(self.line.flying_speed, self.line.flying_speed[0])
+        plan = self._plan(physics, profile)
+        return self._check(physics, plan, profile), self._speed_command(self._near, physics.speed, profile)
+
+    def _nearest(self, point: np.ndarray, near: int) -> int:
+        """Index of the line point nearest ``point``, searched a short way about ``near``."""
+        window = (near + np.arange(-5, 40)) % len(self.line.points)
+        return int(window[int(np.argmin(np.linalg.norm(self.line.points[window] - point, axis=1)))])
+
+    def _speed_command(self, near: int, speed: float, profile: np.ndarray) -> float:
+        ahead = self._s[near] + max(speed, 0.5) * SPEED_LEAD_S
+        return self.pace * float(np.interp(ahead % self._s[-1], self._s, profile)) / self.limits.speed_per_command
+
+    def _plan(self, physics: CarPhysics, profile: np.ndarray) -> np.ndarray:
+        """The kinematic plan (horizon,) of steering commands with the least distance to the line."""
+        pose, plans = physics.pose, self._plans
+        n, horizon = plans.shape
+        v_now = max(physics.speed, 0.3)
+        s_ahead = self._s[self._near] + v_now * PERIOD_S * np.arange(1, horizon + 1)
+        speeds = 0.5 * (v_now + np.maximum(self.pace * np.interp(s_ahead % self._s[-1], self._s, profile), 0.3))
+        lag = math.exp(-PERIOD_S / max(self.limits.steering_tau_s, 1e-3))
+        steer = np.full(n, physics.steering_deg)
+        yaw = np.full(n, pose.yaw)
+        rear = np.tile(pose.ahead(-WHEELBASE_M / 2), (n, 1))
+        centres = np.empty((n, horizon, 2))
+        for k in range(horizon):
+            steer = plans[:, k] + (steer - plans[:, k]) * lag
+            turn = speeds[k] * self._curvature(speeds[k], steer) * PERIOD_S
+            mid = yaw + turn / 2
+            rear = rear + speeds[k] * PERIOD_S * np.column_stack([np.cos(mid), np.sin(mid)])
+            yaw = yaw + turn
+            centres[:, k] = rear + WHEELBASE_M / 2 * np.column_stack([np.cos(yaw), np.sin(yaw)])
+        reach = int((s_ahead[-1] - self._s[self._near]) / self._dense_step) + 60
+        cost = self._cost(centres.reshape(-1, 2), self._near, reach).reshape(n, horizon).sum(axis=1)
+        return plans[int(np.argmin(cost))]
+
+    def _cost(self, points: np.ndarray, near: int, ahead: int) -> np.ndarray:
+        """Each point's squared distance to the line plus the corridor's cost, the line searched from a little
+        behind line point ``near``."""
+        window = (near * DENSE_PER_POINT + np.arange(-5 * DENSE_PER_POINT, ahead)) % len(self._dense)
+        d2 = ((points[:, None, :] - self._dense[window][None, :, :]) ** 2).sum(axis=-1)
+        closest = np.argmin(d2, axis=1)
+        j = window[closest]
+        lateral = np.einsum("ij,ij->i", points - self._centre[j], self._normal[j])
+        outside = np.maximum(lateral - self._high[j], 0.0) + np.maximum(self._low[j] - lateral, 0.0)
+        return d2[np.arange(len(points)), closest] + CORRIDOR_WEIGHT * outside**2
+
+    def _curvature(self, speed: float, steer_deg: np.ndarray) -> np.ndarray:
+        """Signed curvature the car holds at ``speed`` with its wheels at ``steer_deg`` (the measured trials,
+        interpolated bilinearly; the tightest curve held so far beyond the last held trial)."""
+        speeds = self.limits.speeds
+        f = float(np.interp(speed, speeds, np.arange(len(speeds))))
+        i = min(int(f), len(speeds) - 2)
+        frac = f - i
+        row = (1 - frac) * self._kappa[i] + frac * self._kappa[i + 1]
+        grid = np.linspace(0.0, MAX_STEERING_DEG, len(row))
+        return np.sign(steer_deg) * np.interp(np.abs(steer_deg), grid, row)
+
+    def _check(self, physics: CarPhysics, plan: np.ndarray, profile: np.ndarray) -> float:
+        """The first steering command of the best of the plan's neighbours, driven on the simulator."""
+        saved = physics.snapshot()
+        steps = min(CHECK_STEPS, len(plan))
+        best, best_cost = float(plan[0]), math.inf
+        for first in CHECK_OFFSETS_DEG:
+            for then in CHECK_OFFSETS_DEG:
+                trial = plan[:steps] + np.where(np.arange(steps) < self._split, first, then)
+                trial = np.clip(trial, -MAX_STEERING_DEG, MAX_STEERING_DEG)
+                cost = self._drive_ahead(physics, trial, profile)
+                if cost < best_cost:
+                    best, best_cost = float(trial[0]), cost
+                physics.restore(saved)
+        return best
+
+    def _drive_ahead(self, physics: CarPhysics, steering: np.ndarray, profile: np.ndarray) -> float:
+        """The plan's cost (``_cost`` summed) over a drive of these steering commands on ``physics``."""
+        near, cost = self._near, 0.0
+        for steer in steering:
+            physics.command(float(steer), self._speed_command(near, physics.speed, profile))
+            physics.step()
+            pose = physics.pose
+            here = np.array([pose.x, pose.y])
+            near = self._nearest(here, near)
+            cost += float(self._cost(here[None, :], near, 10 * DENSE_PER_POINT)[0])
+        return cost
+
+
+def _curvature_grid(limits: CarLimits, points: int = 121) -> np.ndarray:
+    """(speeds, points) curvature held at each measured speed for steering 0…30°: the measured trials made
+    non-decreasing in the angle (a trial in which the car slid counts as the tightest curve held before it)."""
+    grid = np.linspace(0.0, MAX_STEERING_DEG, points)
+    rows = []
+    for row in limits.curvature_by_steering:
+        held = np.maximum.accumulate(np.concatenate([[0.0], row]))
+        rows.append(np.interp(grid, np.concatenate([[0.0], limits.steering]), held))
+    return np.array(rows)
+
+
+@dataclass(frozen=True)
+class DrivenLap:
+    """What the controller did in the env."""
+
+    status: str
+    """The env's episode status at the end: ``lap_complete``, ``off_track``, ``time_up``…"""
+    lap_time: float | None
+    """Simulated lap time, s (None unless the lap was completed)."""
+    progress: float
+    """Progress reached, %."""
+    path: np.ndarray
+    """(K, 2) positions of the car's front point (DeepRacer's x, y), m."""
+    pace: float = 1.0
+    """Fraction of the profile's speeds commanded (see :data:`PACES`)."""
+
+
+PACES = (1.0, 0.97, 0.94, 0.91)
+"""Fractions of the profile's speeds tried in turn until a lap stays on the track. The car of the limit is driven
+at its limit, where a car whose steering lags half a second (DeepRacer's Gazebo car) may leave the track in one
+bend and not in the next try; a lap at 97 % pace says the limit is within reach, and the report says which pace
+it took."""
+
+
+def drive_line(
+    track: str, line: RacingLine, limits: CarLimits, car: CarCalibration | None = None, max_seconds: float = 120.0
+) -> DrivenLap:
+    """Drive ``line`` round ``track`` from DeepRacer's start (waypoint 0, at rest) in the real env, at the first
+    pace of :data:`PACES` that completes the lap (the last try's lap if none does)."""
+    from sim.env import RacerEnv
+
+    with tempfile.TemporaryDirectory(prefix="racer-limit-") as tmp:
+        # A continuous action space up to the car's highest command: the controller needs in-between values.
+        meta = Path(tmp) / "model_metadata.json"
+        space = {
+            "steering_angle": {"low": -MAX_STEERING_DEG, "high": MAX_STEERING_DEG},
+            "speed": {"low": 0.1, "high": limits.max_command_speed},
+        }
+        meta.write_text(json.dumps({"action_space": space, "action_space_type": "continuous"}))
+        config = EnvConfig(
+            track=track,
+            action_space=str(meta),
+            car=car or CarCalibration(),
+            randomization={"random_start": False},
+            time_limit_steps=int(max_seconds * CONTROL_HZ),
+        )
+        env = RacerEnv(config=config)
+        try:
+            for pace in PACES:
+                lap = _drive(env, LineFollower(line, limits, pace))
+                if lap.status == "lap_complete":
+                    break
+            return lap
+        finally:
+            env.close()
+
+
+def _drive(env, follower: LineFollower) -> DrivenLap:  # noqa: ANN001 - a RacerEnv (imported lazily above)
+    _, info = env.reset(seed=0, options={"start_index": 0, "reverse": False})
+    path, travelled, last = [], 0.0, None
+    done = False
+    while not done:
+        pose = info["pose"]
+        here = np.array([pose.x, pose.y])
+        travelled += 0.0 if last is None else float(np.linalg.norm(here - last))
+        last = here
+        steer, speed = follower.command(env.physics, travelled)
+        _, _, terminated, truncated, info = env.step(np.array([steer, speed], dtype=np.float32))
+        p = info["params"]
+        path.append((p["x"], p["y"]))
+        done = terminated or truncated
+    p, status = info["params"], info["episode_status"]
+    lap = float(p["sim_time"]) if status == "lap_complete" else None
+    return DrivenLap(str(status), lap, float(p["progress"]), np.array(path), follower.pace)
