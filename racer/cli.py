@@ -11,12 +11,29 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help="racer: DeepRacer-style RL on MuJoCo.")
+app = typer.Typer(no_args_is_help=True, help="racer: DeepRacer-style RL on MuJoCo.")
 tracks_app = typer.Typer(no_args_is_help=True, help="The bundled DeepRacer tracks.")
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks.")
 app.add_typer(tracks_app, name="tracks")
 app.add_typer(bench_app, name="bench")
 console = Console()
+
+
+def _version(value: bool) -> None:
+    if value:
+        from importlib.metadata import version
+
+        console.print(f"racer {version('racer')}", highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Show racer's version and exit.")
+    ] = False,
+) -> None:
+    """racer: DeepRacer-style RL on MuJoCo."""
 
 
 def fail(message: str) -> NoReturn:
@@ -159,7 +176,7 @@ def train_cmd(
     from common.config import RunConfig, check_precision
     from model_store import RunStore, open_store
     from racer.check import drfc_lines, merge_inputs
-    from racer.launcher import TrainOptions, new_run_id, run_train
+    from racer.launcher import TrainOptions, new_run_id, run_summary, run_train
     from racer.runconfig import build_run, check_pretrained, parse_duration
 
     try:
@@ -220,7 +237,16 @@ def train_cmd(
         raise
     except RuntimeError as exc:
         fail(str(exc))
-    console.print(f"done: {status.get('iteration', 0)} iterations, {status.get('env_steps', 0)} env steps")
+    console.print(
+        f"done: {status.get('iteration', 0)} iterations, {status.get('env_steps', 0):,} env steps "
+        f"in {status.get('trained_s', 0.0):.0f} s",
+        highlight=False,
+    )
+    try:
+        for line in run_summary(rid, runs, store, s3_endpoint):
+            console.print(line, highlight=False, soft_wrap=True)
+    except _user_errors() as exc:  # the run is trained and saved; only its description failed
+        console.print(f"[yellow]could not read the run's summary: {str(exc).splitlines()[0]}", highlight=False)
 
 
 @app.command("check")
@@ -628,11 +654,10 @@ def models_ls(
     store: StoreOpt = ".",
     s3_endpoint: EndpointOpt = None,
     run_id: Annotated[str | None, typer.Option("--run-id", help="Only this run.")] = None,
+    wide: Annotated[bool, typer.Option("--wide", help="All columns, the run id on every row.")] = False,
     json_out: Annotated[str | None, typer.Option("--json", help="Write the list as JSON to F (- = stdout).")] = None,
 ) -> None:
-    """List checkpoints: run, version, env steps, time, size, evaluation figures, latest/best."""
-    import datetime
-
+    """List checkpoints, one line each under their run: version, env steps, time, size, evaluation, latest/best."""
     from racer.evaluate import models_table
 
     try:
@@ -640,29 +665,38 @@ def models_ls(
     except _user_errors() as exc:
         fail(str(exc).splitlines()[0])
     if json_out != "-":
-        table = Table(
-            "run", "version", "env steps", "created (UTC)", "size", "eval laps", "eval progress", "best lap", ""
-        )
-        for r in rows:
-            created = datetime.datetime.fromtimestamp(r.get("created") or 0, datetime.UTC)
-            marks = " ".join(m for m in ("latest", "best") if r.get(m))
-            ev = r.get("evaluation") or {}
-            laps = "-" if not ev else f"{100 * ev['completion_rate']:.0f}%"
-            progress = "-" if not ev else f"{ev['mean_progress']:.1f}%"
-            best_lap = "-" if not ev or ev.get("best_lap_s") is None else f"{ev['best_lap_s']:.2f} s"
-            table.add_row(
-                r["run_id"],
-                str(r["version"]),
-                str(r.get("env_steps")),
-                f"{created:%Y-%m-%d %H:%M:%S}",
-                f"{(r.get('size_bytes') or 0) / 1e6:.1f} MB",
-                laps,
-                progress,
-                best_lap,
-                marks,
-            )
-        console.print(table)
+        for table in _models_tables(rows, wide):
+            console.print(table)
     write_json(rows, json_out)
+
+
+def _models_tables(rows: list[dict], wide: bool) -> list[Table]:
+    """One table per run that fits 80 columns (the run id as its title), or with --wide one table of all."""
+    import datetime
+
+    columns = ["v", "env steps", "created (UTC)", "size", "laps", "progress", "best lap", ""]
+    runs = [None] if wide else list(dict.fromkeys(r["run_id"] for r in rows))
+    tables = []
+    for run in runs:
+        table = Table(box=None, pad_edge=False, title=run, title_justify="left")
+        for name in ["run", *columns] if wide else columns:
+            table.add_column(name, no_wrap=True)
+        for r in rows if wide else [r for r in rows if r["run_id"] == run]:
+            created = datetime.datetime.fromtimestamp(r.get("created") or 0, datetime.UTC)
+            ev = r.get("evaluation") or {}
+            cells = [
+                str(r["version"]),
+                "-" if r.get("env_steps") is None else f"{r['env_steps']:,}",
+                f"{created:%Y-%m-%d %H:%M}",
+                f"{(r.get('size_bytes') or 0) / 1e6:.1f} MB",
+                "-" if not ev else f"{100 * ev['completion_rate']:.0f}%",
+                "-" if not ev else f"{ev['mean_progress']:.1f}%",
+                "-" if ev.get("best_lap_s") is None else f"{ev['best_lap_s']:.2f} s",
+                " ".join(m for m in ("latest", "best") if r.get(m)),
+            ]
+            table.add_row(*([r["run_id"], *cells] if wide else cells))
+        tables.append(table)
+    return tables
 
 
 @tracks_app.command("ls")

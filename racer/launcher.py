@@ -21,7 +21,8 @@ from rich.live import Live
 from common.config import RunConfig
 from common.keys import Keys
 from common.redis_util import connect, connect_checked, redact
-from model_store import LocalStore, open_store
+from model_store import LocalStore, RunStore, open_store
+from model_store.runs import run_prefix
 from racer.embedded_redis import EmbeddedRedis
 
 
@@ -99,6 +100,23 @@ def _stop_all(procs: list[subprocess.Popen], grace_s: float = 10.0) -> None:
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait()
+
+
+def _time_bar(elapsed_s: float, limit_s: float | None, width: int = 20) -> str:
+    """``━━━━━━──────  31 %  4m08s left`` for a run with a time limit; the time trained so far without one."""
+    if limit_s is None:
+        return f"{_duration(elapsed_s)} trained"
+    done = min(max(elapsed_s / limit_s, 0.0), 1.0)
+    full = round(done * width)
+    return f"{'━' * full}{'─' * (width - full)} {100 * done:3.0f} %  {_duration(limit_s - elapsed_s)} left"
+
+
+def _duration(seconds: float) -> str:
+    """``1h02m``, ``4m08s`` or ``37s``."""
+    s = max(int(round(seconds)), 0)
+    if s >= 3600:
+        return f"{s // 3600}h{s % 3600 // 60:02d}m"
+    return f"{s // 60}m{s % 60:02d}s" if s >= 60 else f"{s}s"
 
 
 def _status_line(status: dict | None, procs_alive: int, workers: int, evaluation: dict | None = None) -> str:
@@ -231,10 +249,14 @@ def _watch(
     console: Console,
 ) -> dict:
     r, keys = connect(redis_url), Keys(run.run_id)
-    deadline = None if opts.time_limit_s is None else time.monotonic() + opts.time_limit_s
+    started = time.monotonic()
+    deadline = None if opts.time_limit_s is None else started + opts.time_limit_s
     status: dict | None = None
     evals: list[dict] = []
-    with Live(console=console, refresh_per_second=4, transient=False) as live:
+    line = ""
+    # Transient: the last status is printed once after the display stops (a non-terminal Live leaves its last
+    # render without a newline, and the next line ran into it).
+    with Live(console=console, refresh_per_second=4, transient=True) as live:
         try:
             while deadline is None or time.monotonic() < deadline:
                 if trainer.poll() is not None:
@@ -253,7 +275,7 @@ def _watch(
                     line = _status_line(status, workers.alive, opts.workers, evals[-1] if evals else None)
                 except redis.RedisError as exc:  # the roles ride out the outage; so does the display
                     line = f"Redis at {redact(redis_url)} unreachable ({type(exc).__name__}); the roles are retrying"
-                live.update(line)
+                live.update(f"{_time_bar(time.monotonic() - started, opts.time_limit_s)}\n{line}")
                 if opts.stop_when_robust and robust_streak(evals) >= opts.stop_when_robust:
                     console.print(f"robust: {opts.stop_when_robust} checkpoints in a row completed every lap")
                     status = {**(status or {}), "stopped_robust": True}
@@ -261,4 +283,38 @@ def _watch(
                 time.sleep(0.25)
         except KeyboardInterrupt:
             console.print("stopping (Ctrl-C)…")
-    return status or {}
+    if line:
+        console.print(line, highlight=False, soft_wrap=True)
+    return {**(status or {}), "trained_s": time.monotonic() - started}
+
+
+def run_summary(run_id: str, runs: RunStore, store: str, s3_endpoint: str | None) -> list[str]:
+    """What a finished ``racer train`` tells its user: the best checkpoint with its evaluation, where the run's
+    files are, and the commands that come next."""
+    from racer.plots import evaluation_versions, read_evaluation
+
+    where = ("" if store == "." else f" --store {store}") + (f" --s3-endpoint {s3_endpoint}" if s3_endpoint else "")
+    lines = [f"run files: {runs.store.key_uri(run_prefix(run_id))}"]
+    best = runs.pointer(run_id, "best")
+    if best is None:
+        lines.append("no checkpoint was written: train for longer (--time-limit)")
+        return lines
+    version = best["version"]
+    if version in evaluation_versions(run_id, runs):
+        e = read_evaluation(run_id, runs, version)
+        laps = e.get("lap_times_s") or []
+        lap = f", mean lap {sum(laps) / len(laps):.2f} s, best {min(laps):.2f} s" if laps else ""
+        lines.append(
+            f"best checkpoint: v{version}, robust evaluation {100 * e['completion_rate']:.0f} % of "
+            f"{e['episodes']} laps completed{lap}"
+        )
+    else:
+        lines.append(f"best checkpoint: v{version} (not evaluated)")
+    lines += [
+        "next:",
+        f"  racer eval --run-id {run_id}{where} --video lap.mp4",
+        f"  racer export --run-id {run_id}{where} -o model.onnx",
+        f"  racer plot {run_id}{where}",
+        f"  racer models ls{where}",
+    ]
+    return lines

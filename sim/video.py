@@ -1,12 +1,15 @@
 """Evaluation videos: what the car's camera saw, beside the car on the track from above, as an MP4.
 
-Written with OpenCV's ``VideoWriter`` (MPEG-4 part 2, fourcc ``mp4v``: the encoder opencv-python-headless ships
-with; ``avc1``/H.264 is tried only if ``mp4v`` cannot be opened, since the pip wheels usually lack an H.264 encoder).
+Encoded as H.264 (``avc1``, yuv420p, ``+faststart``), the codec every browser plays, with PyAV's FFmpeg (libx264).
+Where PyAV or its libx264 is missing, OpenCV's ``VideoWriter`` writes MPEG-4 part 2 (``mp4v``) instead, which
+desktop players read but browsers do not, and a warning says so once per video.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
+from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
@@ -19,10 +22,14 @@ from sim.texture import TextureFrame
 from sim.track import Track
 from sim.views import top_down
 
+log = logging.getLogger(__name__)
+
 CAMERA_ZOOM = 3
 """The 160×120 camera image is enlarged this many times (nearest neighbour, so its pixels stay visible)."""
-FOURCCS = ("mp4v", "avc1")
-"""Codecs tried in order; the first that opens is used."""
+H264, FALLBACK = "avc1", "mp4v"
+"""The codec wanted (H.264, with PyAV) and the one OpenCV writes where that is missing (MPEG-4 part 2)."""
+H264_CRF = 23
+"""libx264's constant quality (its default: visually clean at a few hundred kB per minute at 960×360)."""
 DEFAULT_MAX_STEPS = 3000
 """``record_episode``'s step cap: the env's default time limit (200 s at 15 Hz)."""
 _TEXT = (cv2.FONT_HERSHEY_SIMPLEX, 0.6, 1)  # font, scale, thickness of the overlay
@@ -42,14 +49,62 @@ def _fit_height(img: np.ndarray, height: int) -> np.ndarray:
     return cv2.copyMakeBorder(img, top, height - img.shape[0] - top, 0, 0, cv2.BORDER_CONSTANT, value=(0, 0, 0))
 
 
-def _open_writer(path: Path, fps: float, size: tuple[int, int]) -> tuple[cv2.VideoWriter, str]:
-    """A VideoWriter for ``path`` with the first codec of FOURCCS that opens; OSError if none does."""
-    for fourcc in FOURCCS:
-        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, size)
-        if writer.isOpened():
-            return writer, fourcc
-        writer.release()
-    raise OSError(f"could not open an MP4 writer for {str(path)!r} (tried fourcc {', '.join(FOURCCS)})")
+class _H264Writer:
+    """RGB frames to an H.264 MP4 through PyAV."""
+
+    def __init__(self, path: Path, fps: float, size: tuple[int, int]) -> None:
+        import av
+
+        self._av = av
+        self._container = av.open(str(path), mode="w", options={"movflags": "+faststart"})
+        self._stream = self._container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
+        self._stream.width, self._stream.height = size
+        self._stream.pix_fmt = "yuv420p"  # what browsers decode (libx264 would keep 4:4:4 from RGB input)
+        self._stream.options = {"crf": str(H264_CRF), "preset": "veryfast"}
+
+    def write(self, rgb: np.ndarray) -> None:
+        frame = self._av.VideoFrame.from_ndarray(rgb, format="rgb24")
+        self._container.mux(self._stream.encode(frame))
+
+    def release(self) -> None:
+        self._container.mux(self._stream.encode())  # flush the encoder's delayed frames
+        self._container.close()
+
+
+class _OpenCVWriter:
+    """RGB frames to an MPEG-4 part 2 MP4 through OpenCV (the fallback)."""
+
+    def __init__(self, path: Path, fps: float, size: tuple[int, int]) -> None:
+        self._writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*FALLBACK), fps, size)
+        if not self._writer.isOpened():
+            raise OSError(f"could not open an MP4 writer for {str(path)!r} (no H.264 encoder; OpenCV's mp4v failed)")
+
+    def write(self, rgb: np.ndarray) -> None:
+        self._writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+
+    def release(self) -> None:
+        self._writer.release()
+
+
+def h264_available() -> bool:
+    """Whether PyAV with FFmpeg's libx264 encoder is installed."""
+    try:
+        import av
+    except ImportError:
+        return False
+    return "libx264" in av.codecs_available
+
+
+def _open_writer(path: Path, fps: float, size: tuple[int, int]) -> tuple[_H264Writer | _OpenCVWriter, str]:
+    """The H.264 writer if this machine has one, else OpenCV's MPEG-4 part 2 with a warning; and its fourcc."""
+    if h264_available():
+        return _H264Writer(path, fps, size), H264
+    log.warning(
+        "no H.264 encoder here (PyAV with libx264: pip install av): %s is MPEG-4 part 2, which desktop players "
+        "play and browsers do not",
+        path,
+    )
+    return _OpenCVWriter(path, fps, size), FALLBACK
 
 
 class EpisodeVideo:
@@ -59,7 +114,7 @@ class EpisodeVideo:
     taller and padded with black otherwise. Each frame is stamped with its step number (frame 0 is the reset frame).
     Use as a context manager, or call :meth:`close` to finish the file. ``size`` is the frames' (width, height)
     in pixels (both even: 960×360 for reinvent_base at the defaults), ``frames`` the number written so far and
-    ``fourcc`` the codec that opened.
+    ``fourcc`` the codec written (``avc1``: H.264; ``mp4v`` where no H.264 encoder is installed).
     """
 
     def __init__(
@@ -108,7 +163,7 @@ class EpisodeVideo:
         if self._writer is None:
             raise RuntimeError(f"video {str(self.path)!r} is closed")
         rgb = self.compose(camera_gray, pose, text)
-        self._writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        self._writer.write(rgb)
         self.frames += 1
 
     def close(self) -> None:

@@ -186,3 +186,12 @@ def test_evaluator_keeps_best_and_training_stops_when_robust(tmp_path):
     assert best is not None
     best_score = json.loads(runs.read_file("rb", f"evaluations/{best['version']:09d}.json"))["score"]
     assert best_score == max(r["score"] for r in records)
+    # The summary names the best checkpoint with its evaluation and lap time, where the files are, what comes next.
+    best_record = json.loads(runs.read_file("rb", f"evaluations/{best['version']:09d}.json"))
+    assert f"best checkpoint: v{best['version']}, robust evaluation 100 % of {best_record['episodes']} laps" in (
+        result.stdout
+    )
+    assert f"best {min(best_record['lap_times_s']):.2f} s" in result.stdout
+    assert f"run files: {tmp_path / 'runs' / 'rb'}" in result.stdout.replace("\n", "")
+    assert "racer eval --run-id rb --video lap.mp4" in result.stdout
+    assert "lapsdone" not in result.stdout.replace("\n", "")  # the last status line ends before "done:"

@@ -1,4 +1,5 @@
-"""sim.video: an evaluation episode recorded as an MP4 that OpenCV decodes back frame by frame."""
+"""sim.video: an evaluation episode recorded as an H.264 MP4 (what browsers play) that OpenCV decodes back frame by
+frame, and the MPEG-4 part 2 fallback where no H.264 encoder is installed."""
 
 from __future__ import annotations
 
@@ -96,3 +97,31 @@ def test_a_tall_track_is_shrunk_to_the_camera_height(tmp_path):
     assert video.size[0] < 960 and video.size[0] % 2 == 0
     frames, _ = read_video(tmp_path / "tall.mp4")
     assert len(frames) == 1 and frames[0].shape == picture.shape
+
+
+def test_the_video_is_h264_in_yuv420p_with_its_index_first(env, tmp_path):
+    """Browsers play H.264 in yuv420p; +faststart puts the MP4 index first so a browser starts before the end."""
+    import av
+
+    path = tmp_path / "h264.mp4"
+    summary = record_episode(env, lambda obs: STRAIGHT, path, max_steps=5, options={"start_index": 0})
+    assert summary["fourcc"] == "avc1"
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        assert stream.codec_context.name == "h264" and stream.codec_context.pix_fmt == "yuv420p"
+        assert sum(1 for _ in container.decode(stream)) == summary["frames"]
+    head = path.read_bytes()[:4096]
+    assert head.find(b"moov") != -1 and (head.find(b"mdat") == -1 or head.find(b"moov") < head.find(b"mdat"))
+
+
+def test_without_an_h264_encoder_it_writes_mp4v_and_says_so(env, tmp_path, monkeypatch, caplog):
+    import sim.video
+
+    monkeypatch.setattr(sim.video, "h264_available", lambda: False)  # a machine without PyAV's libx264
+    path = tmp_path / "fallback.mp4"
+    with caplog.at_level("WARNING", logger="sim.video"):
+        summary = record_episode(env, lambda obs: STRAIGHT, path, max_steps=5, options={"start_index": 0})
+    assert summary["fourcc"] == "mp4v"
+    assert "no H.264 encoder here" in caplog.text and "browsers do not" in caplog.text
+    frames, _ = read_video(path)
+    assert abs(len(frames) - summary["frames"]) <= 1
