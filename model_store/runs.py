@@ -1,9 +1,12 @@
-"""The run layout of DESIGN.md on top of any ObjectStore.
+"""The run layout (checkpoints, pointers, run files) on top of any ObjectStore; ARCHITECTURE.md has the whole layout.
 
 ::
 
     runs/{run_id}/checkpoints/{version:09d}.pt     checkpoint bytes (produced by the caller)
     runs/{run_id}/checkpoints/{version:09d}.json   its metadata
+    runs/{run_id}/checkpoints/{version:09d}.optimizer.pt
+                                                   the optimizer's state, kept only where a resume (the newest) or
+                                                   the collapse guard's roll-back (the best) needs it
     runs/{run_id}/latest.json, best.json           pointers: {"version": N, ...that checkpoint's metadata}
     runs/{run_id}/{name}                           run files: model_metadata.json, reward_function.py, ...
 
@@ -25,6 +28,7 @@ PointerName = Literal["latest", "best"]
 POINTERS: tuple[str, ...] = ("latest", "best")
 
 _CKPT_NAME = re.compile(r"^(\d{9})\.(pt|json)$")
+_OPTIMIZER_NAME = re.compile(r"^(\d{9})\.optimizer\.pt$")
 
 
 def _check_version(version: int) -> int:
@@ -53,6 +57,11 @@ def checkpoint_key(run_id: str, version: int) -> str:
 def checkpoint_meta_key(run_id: str, version: int) -> str:
     """Key of a checkpoint's metadata: ``runs/{run_id}/checkpoints/{version:09d}.json``."""
     return f"{run_prefix(run_id)}checkpoints/{_check_version(version):09d}.json"
+
+
+def optimizer_key(run_id: str, version: int) -> str:
+    """Key of a checkpoint's optimizer state: ``runs/{run_id}/checkpoints/{version:09d}.optimizer.pt``."""
+    return f"{run_prefix(run_id)}checkpoints/{_check_version(version):09d}.optimizer.pt"
 
 
 def pointer_key(run_id: str, name: str) -> str:
@@ -110,8 +119,11 @@ class RunStore:
 
     # -- checkpoints ---------------------------------------------------------------------------------------------------
 
-    def save_checkpoint(self, run_id: str, version: int, payload: bytes, meta: dict[str, Any]) -> dict[str, Any]:
-        """Write the .pt, then its .json, then LAST the ``latest`` pointer; return the full metadata.
+    def save_checkpoint(
+        self, run_id: str, version: int, payload: bytes, meta: dict[str, Any], optimizer: bytes | None = None
+    ) -> dict[str, Any]:
+        """Write the optimizer state (if given), the .pt, then its .json, then LAST the ``latest`` pointer; return
+        the full metadata.
 
         The metadata is ``meta`` plus ``run_id``, ``version``, ``size_bytes`` and ``created`` (epoch s, if absent).
         A whole checkpoint (its .json exists) is never overwritten: StoreError. A half-written one (a .pt left by a
@@ -126,6 +138,8 @@ class RunStore:
         if stored is not None and stored != meta_bytes:
             raise StoreError(f"checkpoint {version} of run {run_id!r} already exists: {self.store.key_uri(meta_key)}")
         if stored is None:
+            if optimizer is not None:
+                self.store.put(optimizer_key(run_id, version), bytes(optimizer))
             self.store.put(checkpoint_key(run_id, version), bytes(payload))
             self.store.put(meta_key, meta_bytes)
         self.store.put(pointer_key(run_id, "latest"), _dumps({**full, "version": version}))
@@ -143,6 +157,24 @@ class RunStore:
         for v in doomed:
             self.store.delete(checkpoint_meta_key(run_id, v))
             self.store.delete(checkpoint_key(run_id, v))
+            self.store.delete(optimizer_key(run_id, v))
+        return doomed
+
+    def load_optimizer(self, run_id: str, version: int) -> bytes | None:
+        """The optimizer state saved with checkpoint ``version``, or None where it was not kept."""
+        return self._get_or_none(optimizer_key(run_id, version))
+
+    def keep_optimizer_states(self, run_id: str, keep: set[int]) -> list[int]:
+        """Delete the optimizer state of every checkpoint not in ``keep``; return the versions it was deleted of.
+
+        The optimizer (Adam's two moments) is twice the size of the weights, and only a resume (the newest
+        checkpoint) or a roll-back (the best) reads it: a run keeps the weights of its last few checkpoints and
+        the optimizer state of one or two."""
+        prefix = f"{run_prefix(run_id)}checkpoints/"
+        found = (_OPTIMIZER_NAME.match(info.key[len(prefix) :]) for info in self.store.list(prefix))
+        doomed = sorted(v for v in (int(m.group(1)) for m in found if m) if v not in keep)
+        for v in doomed:
+            self.store.delete(optimizer_key(run_id, v))
         return doomed
 
     def _versions(self, run_id: str) -> set[int]:

@@ -19,7 +19,7 @@ import redis
 import torch
 
 from common.keys import Keys
-from common.policy import checkpoint_from_bytes
+from common.policy import state_dict_from_bytes
 from common.protocol import ProtocolError, decode_segment
 from model_store import RunStore, open_store
 from racer.embedded_redis import EmbeddedRedis, free_port
@@ -48,10 +48,9 @@ def version(r: redis.Redis, keys: Keys) -> int:
     return json.loads(raw)["version"] if raw else -1
 
 
-def adam_steps(payload: bytes) -> float:
+def adam_steps(optimizer: bytes) -> float:
     """Adam's step count for the first parameter: the number of optimizer steps taken so far."""
-    _, optim = checkpoint_from_bytes(payload)
-    return float(torch.as_tensor(optim["state"][0]["step"]))
+    return float(torch.as_tensor(state_dict_from_bytes(optimizer)["state"][0]["step"]))
 
 
 def test_worker_killed_mid_segment_is_named_and_a_restarted_worker_rejoins(tmp_path, redis_url):
@@ -132,7 +131,7 @@ def test_trainer_killed_mid_checkpoint_upload_resumes_with_its_state(tmp_path, r
         assert runs.store.exists(f"runs/{run_id}/checkpoints/{orphan:09d}.pt"), "killed mid-upload"
         assert not runs.store.exists(f"runs/{run_id}/checkpoints/{orphan:09d}.json")
         payload, meta = runs.load_checkpoint(run_id, "latest")  # whole: size and metadata agree
-        steps_before = adam_steps(payload)
+        steps_before = adam_steps(runs.load_optimizer(run_id, meta["version"]))
 
         proxy.up()
         trainer = spawn_trainer(config, redis_url, trainer_store, log, resume=True)
@@ -146,7 +145,7 @@ def test_trainer_killed_mid_checkpoint_upload_resumes_with_its_state(tmp_path, r
         payload2, meta2 = runs.load_checkpoint(run_id, orphan)  # the half-written one was replaced, whole
         assert meta2["iteration"] == meta["iteration"] + 1
         assert meta2["env_steps"] > meta["env_steps"]
-        assert adam_steps(payload2) > steps_before, "the optimizer state was carried over, not restarted"
+        assert adam_steps(runs.load_optimizer(run_id, orphan)) > steps_before, "the optimizer state was carried over"
 
         # 2. Killed after a checkpoint's .json and before the pointer: resume from that whole checkpoint.
         proxy.hold(rb"PUT /[^ ]*/latest\.json ")

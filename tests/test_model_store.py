@@ -363,3 +363,20 @@ def test_list_runs_and_list_models_across_two_runs(store):
     assert [m["version"] for m in list_models(store, "run-b")] == [1, 2]
     assert list_models(store, "no-such-run") == []
     json.dumps(models)  # the CLI writes this as --json
+
+
+def test_optimizer_states_are_kept_apart_and_only_where_asked(store):
+    """The optimizer state sits beside the weights, is not a checkpoint of its own (listings ignore it), and goes
+    with its checkpoint when that is pruned; keep_optimizer_states drops all but the kept versions'."""
+    runs = RunStore(store)
+    for v in range(1, 7):
+        runs.save_checkpoint("run1", v, f"weights-{v}".encode(), {"env_steps": v}, optimizer=f"adam-{v}".encode())
+    assert [c["version"] for c in runs.list_checkpoints("run1")] == [1, 2, 3, 4, 5, 6]
+    assert runs.load_checkpoint("run1", 6)[0] == b"weights-6" and runs.load_optimizer("run1", 6) == b"adam-6"
+    assert runs.keep_optimizer_states("run1", {6, 2}) == [1, 3, 4, 5]
+    assert [runs.load_optimizer("run1", v) for v in (1, 2, 5, 6)] == [None, b"adam-2", None, b"adam-6"]
+    assert runs.prune_checkpoints("run1", keep_last=3) == [1, 2, 3]
+    assert runs.load_optimizer("run1", 2) is None  # pruned with its weights
+    names = sorted(info.key.rsplit("/", 1)[1] for info in store.list("runs/run1/checkpoints/"))
+    expected = [f"00000000{v}.{ext}" for v in (4, 5, 6) for ext in ("json", "pt")] + ["000000006.optimizer.pt"]
+    assert names == sorted(expected)

@@ -14,7 +14,7 @@ import redis
 import torch
 
 from common.keys import Keys
-from common.policy import checkpoint_from_bytes
+from common.policy import checkpoint_from_bytes, state_dict_from_bytes
 from common.protocol import PolicyVersion
 from model_store import RunStore, open_store
 from tests.test_training_loop import fill, start
@@ -149,8 +149,11 @@ def test_a_collapse_rolls_back_to_the_best_weights_and_optimizer_at_a_lower_lr(
         trainer.run_forever()
     assert trainer.version == 4
     assert trainer.stability == Stability(lr_scale=0.5, collapses=1, rollbacks=1, floor=4)
-    best_model, best_optim = checkpoint_from_bytes(runs.load_checkpoint(run_id, 1)[0])
-    new_model, new_optim = checkpoint_from_bytes(runs.load_checkpoint(run_id, 4)[0])
+    best_model, _ = checkpoint_from_bytes(runs.load_checkpoint(run_id, 1)[0])
+    new_model, _ = checkpoint_from_bytes(runs.load_checkpoint(run_id, 4)[0])
+    # v1's optimizer state was kept for the roll-back (the guard had seen no evaluation when v2 and v3 were saved).
+    best_optim = state_dict_from_bytes(runs.load_optimizer(run_id, 1))
+    new_optim = state_dict_from_bytes(runs.load_optimizer(run_id, 4))
     assert _same(new_model, best_model) and _same(trainer.model.state_dict(), best_model)
     assert _same(trainer.optimizer.state_dict()["state"][0], best_optim["state"][0])
     # lr at update k = 3: 0.001 * (1 - 0.5 * 3/4) = 0.000625, halved by the rollback

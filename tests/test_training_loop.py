@@ -8,6 +8,7 @@ import redis
 import torch
 
 from common.keys import Keys
+from common.policy import checkpoint_from_bytes
 from common.protocol import PolicyVersion
 from model_store import RunStore, open_store
 from racer.runconfig import build_run
@@ -108,6 +109,24 @@ def test_resume_restores_version_steps_and_optimizer(redis_url, run_id, tmp_path
     after = again.optimizer.state_dict()["state"]
     assert before.keys() == after.keys() and torch.equal(before[0]["exp_avg"], after[0]["exp_avg"])
     assert len(again.metrics) == 1
+
+
+def test_only_the_newest_checkpoint_keeps_the_optimizer_state(redis_url, run_id, tmp_path, hp_file):
+    """Adam's state is twice the weights: a run keeps it for the checkpoint a resume reads, not for every one."""
+    store = str(tmp_path / "store")
+    trainer, worker = start(run_id, redis_url, store, hp_file)
+    for _ in range(3):
+        fill(trainer, worker)
+        trainer.train()
+        worker.poll_policy()
+    worker.close()
+    runs = RunStore(open_store(store))
+    assert [runs.load_optimizer(run_id, v) is not None for v in (1, 2, 3)] == [False, False, True]
+    payload, meta = runs.load_checkpoint(run_id, 3)
+    assert checkpoint_from_bytes(payload)[1] is None  # the weights alone
+    optimizer = runs.load_optimizer(run_id, 3)
+    assert 1.9 < len(optimizer) / len(payload) < 2.2  # Adam's two moments per weight
+    assert meta["size_bytes"] == len(payload)
 
 
 def test_the_loop_works_with_an_s3_store(redis_url, run_id, s3_server, hp_file, tmp_path, monkeypatch):

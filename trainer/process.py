@@ -37,12 +37,15 @@ from common.policy import (
     build_policy,
     checkpoint_from_bytes,
     checkpoint_to_bytes,
+    state_dict_from_bytes,
+    state_dict_to_bytes,
 )
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, decode_segment
 from common.redis_util import connect_checked, redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
 from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
+from model_store.runs import checkpoint_key
 from sim.env import RacerEnv
 from trainer.evaluator import evaluation_key
 from trainer.ppo import PPOBatch, compute_gae, scheduled, update
@@ -268,7 +271,7 @@ class Trainer:
             log.warning("latest pointer names version %s but version %d is whole: resuming from it", pointer, newest)
             self.runs.set_pointer(self.run.run_id, "latest", newest)
         payload, meta = self.runs.load_checkpoint(self.run.run_id, newest)
-        self._load_state(payload)
+        self._load_state(payload, self.runs.load_optimizer(self.run.run_id, newest))
         self.version = int(meta["version"])
         self.stats.env_steps = int(meta.get("env_steps", 0))
         self.stats.episodes = int(meta.get("episodes", 0))
@@ -280,11 +283,16 @@ class Trainer:
             self.metrics = [json.loads(line) for line in lines if line.strip()]
         log.info("resumed run %s at version %d (%d env steps)", self.run.run_id, self.version, self.stats.env_steps)
 
-    def _load_state(self, payload: bytes) -> None:
-        """Weights and (when the checkpoint has it) optimizer state from checkpoint bytes."""
+    def _load_state(self, payload: bytes, optimizer: bytes | None) -> None:
+        """Weights from checkpoint bytes, and the optimizer state saved beside them (or, from a trainer before
+        racer kept it apart, inside them); without either the optimizer starts afresh."""
         model_sd, optim_sd = checkpoint_from_bytes(payload)
         self.model.load_state_dict(model_sd)
-        if optim_sd is not None:
+        if optimizer is not None:
+            optim_sd = state_dict_from_bytes(optimizer)
+        if optim_sd is None:
+            self.optimizer = make_optimizer(self.model, self.hp.lr, self.run.policy.l2)
+        else:
             self.optimizer.load_state_dict(optim_sd)
             for group in self.optimizer.param_groups:  # a checkpoint from an older trainer says fused=None
                 group["fused"] = self.optimizer.defaults["fused"]
@@ -312,7 +320,8 @@ class Trainer:
     def _checkpoint(self, **extra: object) -> dict:
         """Save the current version (``extra`` goes into its metadata); through a store outage, retry the same
         bytes and metadata until it is whole."""
-        payload = checkpoint_to_bytes(self.model.state_dict(), self.optimizer.state_dict())
+        payload = checkpoint_to_bytes(self.model.state_dict())
+        optimizer = state_dict_to_bytes(self.optimizer.state_dict())
         meta = {
             "env_steps": self.stats.env_steps,
             "episodes": self.stats.episodes,
@@ -324,11 +333,23 @@ class Trainer:
         }
         return self.store_outage.call(
             f"save checkpoint {self.version}",
-            lambda: self.runs.save_checkpoint(self.run.run_id, self.version, payload, meta),
+            lambda: self.runs.save_checkpoint(self.run.run_id, self.version, payload, meta, optimizer),
         )
 
+    def _prune(self) -> None:
+        """Keep the newest ``keep_checkpoints`` checkpoints (and the pointed ones), and the optimizer state only of
+        the newest (a resume reads it) and, with the collapse guard on, of those a roll-back may read: the best,
+        and every version the guard has not seen evaluated yet (the evaluator lags; any of them may become best)."""
+        self.runs.prune_checkpoints(self.run.run_id, self.run.keep_checkpoints)  # with their optimizer states
+        keep = {self.version}
+        if self.hp.collapse_guard:
+            best = (self.runs.pointer(self.run.run_id, "best") or {}).get("version")
+            keep |= {best} if isinstance(best, int) else set()
+            keep |= set(range(self.watch.seen + 1, self.version))
+        self.runs.keep_optimizer_states(self.run.run_id, keep)
+
     def _publish(self) -> None:
-        key = f"runs/{self.run.run_id}/checkpoints/{self.version:09d}.pt"
+        key = checkpoint_key(self.run.run_id, self.version)
         pv = PolicyVersion(self.version, key, time.time()).to_json()
         pipe = self.redis.pipeline(transaction=False)
         pipe.set(self.keys.policy, pv)
@@ -433,9 +454,7 @@ class Trainer:
         self.stats.iteration += 1
         self._checkpoint()
         self.redis_outage.call("publish the policy", lambda: (self._publish(), self.redis.delete(self.keys.training)))
-        self.store_outage.call(
-            "prune checkpoints", lambda: self.runs.prune_checkpoints(self.run.run_id, self.run.keep_checkpoints)
-        )
+        self.store_outage.call("prune checkpoints", self._prune)
         self._record(result, episodes, lags, batch, time.monotonic() - t0)
         log.info("iteration %d: version %d, %s", self.stats.iteration, self.version, result)
         return result
@@ -504,12 +523,18 @@ class Trainer:
             payload, _ = self.store_outage.call(
                 f"read best checkpoint {best_version}", lambda: self.runs.load_checkpoint(self.run.run_id, best_version)
             )
+            optimizer = self.store_outage.call(
+                f"read best checkpoint {best_version}'s optimizer",
+                lambda: self.runs.load_optimizer(self.run.run_id, best_version),
+            )
         except StoreKeyError as exc:
             log.warning("collapse guard: collapse %d detected but not rolled back: %s", self.stability.collapses, exc)
             self.watch.restart(self.watch.floor)
             return False
         old_lr = self.learning_rate()
-        self._load_state(payload)
+        if optimizer is None:  # not kept (a best from before the guard was on): its weights, a fresh optimizer
+            log.warning("collapse guard: v%d's optimizer state was not kept; rolling back its weights", best_version)
+        self._load_state(payload, optimizer)
         self.stability.lr_scale *= self.hp.collapse_lr_factor
         self.stability.rollbacks += 1
         for _ in self.buffer:
@@ -521,9 +546,7 @@ class Trainer:
         self._set_lr(self.learning_rate())  # the best's optimizer state carries the best's learning rate
         self._checkpoint(rolled_back_to=best_version)
         self.redis_outage.call("publish the policy", self._publish)
-        self.store_outage.call(
-            "prune checkpoints", lambda: self.runs.prune_checkpoints(self.run.run_id, self.run.keep_checkpoints)
-        )
+        self.store_outage.call("prune checkpoints", self._prune)
         log.warning(
             "collapse guard: v%s completed %s of their evaluation trials against best v%d's %.2f "
             "(collapsed at <= %.2f); rolled back to v%d's weights and optimizer as v%d, learning rate %.3g -> %.3g "
