@@ -1,9 +1,10 @@
 """racer.model_store: checkpoints and run files on S3 or a local directory, behind one interface.
 
 ``open_store(uri)`` gives an :class:`ObjectStore` (``s3://bucket/prefix`` → :class:`S3Store`, a path →
-:class:`LocalStore`); :class:`RunStore` lays runs out on it as DESIGN.md describes (``runs/{run_id}/checkpoints/…``,
-``latest.json``/``best.json`` pointers written last, run files); :func:`list_models` backs ``racer models ls``.
-Nothing read from the store is unpickled: metadata is JSON, checkpoints are bytes the caller decodes.
+:class:`LocalStore`); :class:`RunStore` lays runs out on it (``runs/{run_id}/checkpoints/…``,
+``latest.json``/``best.json`` pointers written last, run files; the whole layout is in ARCHITECTURE.md);
+:func:`list_models` backs ``racer models ls``. Nothing read from the store is unpickled: metadata is JSON,
+checkpoints are bytes the caller decodes.
 """
 
 from model_store.runs import (

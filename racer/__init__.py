@@ -1,1 +1,7 @@
-"""racer command line (thin: each command parses options and calls one function)."""
+"""racer: the ``racer`` command line and what it orchestrates.
+
+``cli`` is the typer app (thin: each command parses options and calls one function); ``launcher`` and
+``embedded_redis`` run ``racer train`` (Redis, trainer, workers, evaluator as processes); ``runconfig``,
+``check`` and ``drfc`` turn the user's files into a run; ``evaluate``, ``plots``, ``limit``, ``calibrate``
+and ``bench_*`` back the other commands. See ARCHITECTURE.md.
+"""

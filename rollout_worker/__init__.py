@@ -1,1 +1,6 @@
-"""racer.rollout_worker — see DESIGN.md for what this package owns."""
+"""racer.rollout_worker: the rollout worker role (``racer worker``).
+
+``worker`` builds the run's env and network from the store, acts with the newest published policy, pushes
+segments of experience and heartbeats to Redis, and uploads DeepRacer sim-traces per iteration. See
+ARCHITECTURE.md.
+"""

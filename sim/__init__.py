@@ -1,6 +1,10 @@
 """racer's simulator: DeepRacer tracks, the MuJoCo car and world, the camera and the gymnasium env.
 
+The model (``world``, ``physics``, ``actuation``), the task (``task``), the reward-function API (``reward``), the
+env that wires them (``env``), tracks, texture and camera (``track``, ``texture``, ``camera``), the parts of
+``racer limit`` (``car_limits``, ``raceline``, ``follower``) and of ``racer calibrate`` (``calibration``).
 Importing ``sim`` registers ``Racer-v0`` with gymnasium, so ``gymnasium.make("sim:Racer-v0")`` works.
+See ARCHITECTURE.md.
 """
 
 from sim._gl import ensure_gl_backend

@@ -11,7 +11,8 @@ import pytest
 
 from sim.track import Track, TrackError, bundled_track_names, load_track
 
-# Lengths from /work/shared/data/SOURCES.md (copied here: tests must not read /work/shared).
+# Reference centre-line lengths (m) of the bundled tracks, whose sources sim/tracks/LICENSE names; kept here as
+# literals so that the loader is checked against fixed figures rather than against itself.
 EXPECTED_LENGTH_M = {
     "reinvent_base": 17.71,
     "Oval_track": 19.55,
