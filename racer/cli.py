@@ -359,12 +359,26 @@ def worker_cmd(
     index: Annotated[int | None, typer.Option(envvar="RACER_WORKER_INDEX", help="Worker index (seed, track).")] = None,
     worker_id: Annotated[str, typer.Option("--worker-id", envvar="RACER_WORKER_ID")] = "",
     outage_timeout: OutageOpt = "10m",
+    simtrace_log: Annotated[
+        bool,
+        typer.Option(
+            "--simtrace-log/--no-simtrace-log",
+            envvar="RACER_SIMTRACE_LOG",
+            help="Also log every step's SIM_TRACE_LOG line, as DeepRacer's RoboMaker log does (the CSVs are always "
+            "written).",
+        ),
+    ] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v")] = False,
 ) -> None:
     """Run one rollout worker (for docker compose and workers on other machines)."""
+    import logging
+
+    from common.simtrace import LOG as SIMTRACE_LOG
     from rollout_worker.worker import WorkerOptions, run_worker
 
     _setup_logging(verbose)
+    # One line per step (15 a second per worker) fills a log fast; the sim-trace CSVs in the store hold the same rows.
+    SIMTRACE_LOG.setLevel(logging.INFO if simtrace_log else logging.WARNING)
     try:
         # Without --index, the worker takes the next free index from Redis (scaled compose workers: 0, 1, …).
         from racer.runconfig import parse_duration

@@ -101,6 +101,10 @@ def test_train_embedded_redis_starts_and_cleans_up(tmp_path):
     assert result.returncode == 0, result.stdout + result.stderr
     runs = RunStore(open_store(str(tmp_path)))
     assert runs.pointer("emb", "latest") is not None
+    # The worker logged its work, not a line per step (the sim-trace CSVs hold the steps).
+    worker_log = (tmp_path / "runs" / "emb" / "logs" / "worker-0.log").read_text()
+    assert "acting with policy version" in worker_log and "SIM_TRACE_LOG" not in worker_log
+    assert list((tmp_path / "runs" / "emb").glob("*/training-simtrace/*-iteration.csv"))
     # No redis-server or racer role process of this run is left behind.
     ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True).stdout
     assert "--run-id emb" not in ps
