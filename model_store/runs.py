@@ -160,6 +160,32 @@ class RunStore:
             self.store.delete(optimizer_key(run_id, v))
         return doomed
 
+    def prune_run(self, run_id: str, keep_last: int, dry_run: bool = False) -> dict[str, Any]:
+        """Shrink a finished run: keep the newest ``keep_last`` checkpoints and those a pointer names, and the
+        optimizer state of the newest only (what a resume reads). Returns what went (or, with ``dry_run``, would
+        go): ``{"run_id", "checkpoints": [versions], "optimizer_states": [versions], "bytes": freed}``."""
+        prefix = f"{run_prefix(run_id)}checkpoints/"
+        sizes = {info.key: info.size for info in self.store.list(prefix)}
+        versions = sorted(self._versions(run_id))
+        if not versions:
+            raise self._missing(run_id, "checkpoint")
+        pinned = {(self.pointer(run_id, name) or {}).get("version") for name in POINTERS}
+        doomed = [v for v in versions[: max(0, len(versions) - keep_last)] if v not in pinned]
+        optimizers = sorted(
+            v
+            for v in (int(m.group(1)) for m in (_OPTIMIZER_NAME.match(k[len(prefix) :]) for k in sizes) if m)
+            if v != versions[-1] and v not in doomed
+        )
+        freed = sum(
+            sizes.get(key, 0)
+            for v in doomed
+            for key in (checkpoint_key(run_id, v), checkpoint_meta_key(run_id, v), optimizer_key(run_id, v))
+        ) + sum(sizes.get(optimizer_key(run_id, v), 0) for v in optimizers)
+        if not dry_run:
+            self.prune_checkpoints(run_id, keep_last)
+            self.keep_optimizer_states(run_id, {versions[-1]})
+        return {"run_id": run_id, "checkpoints": doomed, "optimizer_states": optimizers, "bytes": freed}
+
     def load_optimizer(self, run_id: str, version: int) -> bytes | None:
         """The optimizer state saved with checkpoint ``version``, or None where it was not kept."""
         return self._get_or_none(optimizer_key(run_id, version))

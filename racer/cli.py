@@ -684,6 +684,35 @@ def models_ls(
     write_json(rows, json_out)
 
 
+@models_app.command("prune")
+def models_prune(
+    store: StoreOpt = ".",
+    s3_endpoint: EndpointOpt = None,
+    run_id: Annotated[list[str] | None, typer.Option("--run-id", help="Only this run (repeatable).")] = None,
+    keep: Annotated[int, typer.Option(min=0, help="Newest checkpoints to keep beside latest and best.")] = 1,
+    dry_run: Annotated[bool, typer.Option("--dry-run", help="Say what would go; delete nothing.")] = False,
+    json_out: Annotated[str | None, typer.Option("--json", help="Write what went as JSON to F (- = stdout).")] = None,
+) -> None:
+    """Shrink runs you are done training: delete all checkpoints but the newest --keep and the latest and best
+    ones, and every optimizer state but the newest checkpoint's. Do not prune a run that is still training."""
+    from model_store import RunStore, open_store
+
+    try:
+        runs = RunStore(open_store(store, s3_endpoint))
+        results = [runs.prune_run(r, keep, dry_run) for r in run_id or runs.list_runs()]
+    except _user_errors() as exc:
+        fail(str(exc).splitlines()[0])
+    if json_out != "-":
+        verb = "would free" if dry_run else "freed"
+        for r in results:
+            console.print(
+                f"{r['run_id']}: {verb} {r['bytes'] / 1e6:.1f} MB ({len(r['checkpoints'])} checkpoints, "
+                f"{len(r['optimizer_states'])} optimizer states)",
+                highlight=False,
+            )
+    write_json(results, json_out)
+
+
 def _models_tables(rows: list[dict], wide: bool) -> list[Table]:
     """One table per run that fits 80 columns (the run id as its title), or with --wide one table of all."""
     import datetime

@@ -89,3 +89,17 @@ def test_models_ls_wide_has_the_run_on_every_row() -> None:
 def test_version() -> None:
     result = CliRunner().invoke(app, ["--version"])
     assert result.exit_code == 0 and result.stdout.startswith("racer ")
+
+
+def test_models_prune_says_what_it_frees_and_keeps_latest_and_best(tmp_path: Path) -> None:
+    runs = _run_with_best(tmp_path, [9.0])  # best = v3
+    for v in (4, 5, 6):
+        runs.save_checkpoint("r1", v, b"w" * 1_000_000, {"env_steps": v}, optimizer=b"o" * 2_000_000)
+    store = ["--store", str(tmp_path)]
+    dry = CliRunner().invoke(app, ["models", "prune", *store, "--keep", "0", "--dry-run"])
+    assert dry.exit_code == 0 and "r1: would free 6.0 MB (2 checkpoints, 0 optimizer states)" in dry.stdout
+    done = CliRunner().invoke(app, ["models", "prune", *store, "--keep", "0", "--json", "-"])
+    assert json.loads(done.stdout)[0]["checkpoints"] == [4, 5]  # their optimizer states go with them
+    assert [c["version"] for c in runs.list_checkpoints("r1")] == [3, 6]
+    missing = CliRunner().invoke(app, ["models", "prune", *store, "--run-id", "nope"])
+    assert missing.exit_code == 2 and "run 'nope' does not exist" in missing.stderr
