@@ -30,8 +30,10 @@ import json
 import math
 import time
 from dataclasses import dataclass, field
+from typing import ClassVar, Self
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 SCHEMA_VERSION = 1
 MAX_HEADER_BYTES = 1 << 16
@@ -265,35 +267,41 @@ def _typed(cls: type, d: object, reason: str):
     return obj
 
 
-@dataclass(frozen=True)
-class PolicyVersion:
-    """A published policy: its version and where its checkpoint is in the store."""
+class _Message(BaseModel):
+    """A JSON message in Redis, validated strictly: every field present and of its type (no bool for an int, no
+    string for a number, no NaN or infinity), nothing unknown. A malformed one is a ProtocolError."""
 
-    version: int
-    checkpoint_key: str
-    created: float
+    model_config = ConfigDict(strict=True, frozen=True, extra="forbid", allow_inf_nan=False)
+    _reason: ClassVar[str] = "bad_message"
 
     def to_json(self) -> str:
         """JSON text for Redis."""
-        return json.dumps(self.__dict__)
+        return self.model_dump_json()
 
     @classmethod
-    def from_json(cls, raw: bytes | str) -> PolicyVersion:
-        """Parse and validate; raise ProtocolError if malformed."""
+    def from_json(cls, raw: bytes | str) -> Self:
+        """Parse and validate; raise ProtocolError naming the first bad field."""
         try:
-            d = json.loads(raw)
-            pv = cls(version=int(d["version"]), checkpoint_key=str(d["checkpoint_key"]), created=float(d["created"]))
-        except (ValueError, KeyError, TypeError) as exc:
-            raise ProtocolError("bad_policy_version", str(exc)) from None
-        if pv.version < 0:
-            raise ProtocolError("bad_policy_version", f"version {pv.version}")
-        return pv
+            return cls.model_validate_json(raw)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            where = ".".join(str(p) for p in first["loc"]) or "message"
+            raise ProtocolError(cls._reason, f"{cls.__name__}.{where}: {first['msg']}") from None
 
 
-@dataclass(frozen=True)
-class Heartbeat:
+class PolicyVersion(_Message):
+    """A published policy: its version and where its checkpoint is in the store."""
+
+    _reason: ClassVar[str] = "bad_policy_version"
+    version: int = Field(ge=0)
+    checkpoint_key: str
+    created: float
+
+
+class Heartbeat(_Message):
     """A worker's liveness and progress, kept in a key with a TTL."""
 
+    _reason: ClassVar[str] = "bad_heartbeat"
     worker_id: str
     pid: int
     host: str
@@ -306,16 +314,3 @@ class Heartbeat:
     """Wall-clock time the worker started acting with ``policy_version``, epoch seconds."""
     max_rss_mb: float = 0.0
     """Peak resident memory of the worker process, MB."""
-
-    def to_json(self) -> str:
-        """JSON text for Redis."""
-        return json.dumps(self.__dict__)
-
-    @classmethod
-    def from_json(cls, raw: bytes | str) -> Heartbeat:
-        """Parse and validate (every field's type); raise ProtocolError if malformed."""
-        try:
-            data = json.loads(raw)
-        except (ValueError, TypeError) as exc:
-            raise ProtocolError("bad_heartbeat", str(exc)) from None
-        return _typed(cls, data, "bad_heartbeat")

@@ -252,16 +252,16 @@ class RolloutWorker:
 
     def _heartbeat(self, sending: int = 0) -> Heartbeat:
         return Heartbeat(
-            self.worker_id,
-            os.getpid(),
-            socket.gethostname(),
-            self.policy_version,
-            self.env_steps,
-            self.segments + sending,
-            time.time(),
-            self.env.track.name,
-            self.policy_loaded_at,
-            peak_rss_mb(),
+            worker_id=self.worker_id,
+            pid=os.getpid(),
+            host=socket.gethostname(),
+            policy_version=self.policy_version,
+            env_steps=self.env_steps,
+            segments=self.segments + sending,
+            time=time.time(),
+            track=self.env.track.name,
+            policy_loaded_at=self.policy_loaded_at,
+            max_rss_mb=peak_rss_mb(),
         )
 
     def poll_policy(self) -> bool:

@@ -124,15 +124,28 @@ def test_missing_header_is_refused():
 
 
 def test_policy_version_and_heartbeat_roundtrip_and_validation():
-    pv = PolicyVersion(5, "runs/a/checkpoints/000000005.pt", 1.5)
+    pv = PolicyVersion(version=5, checkpoint_key="runs/a/checkpoints/000000005.pt", created=1.5)
     assert PolicyVersion.from_json(pv.to_json()) == pv
-    for bad in (b"{}", b"nonsense", b'{"version": -1, "checkpoint_key": "k", "created": 0}'):
-        with pytest.raises(ProtocolError):
+    bad_versions = {
+        b"{}": "version",
+        b"nonsense": "message",
+        b'{"version": -1, "checkpoint_key": "k", "created": 0}': "version",
+        b'{"version": true, "checkpoint_key": "k", "created": 0}': "version",  # a bool is not a version
+        b'{"version": 1.5, "checkpoint_key": "k", "created": 0}': "version",
+        b'{"version": 1, "checkpoint_key": "k", "created": NaN}': "created",
+        b'{"version": 1, "checkpoint_key": 7, "created": 0}': "checkpoint_key",
+        b'{"version": 1, "checkpoint_key": "k", "created": 0, "extra": 1}': "extra",
+    }
+    for bad, field_name in bad_versions.items():
+        with pytest.raises(ProtocolError, match=f"bad_policy_version.*PolicyVersion.{field_name}"):
             PolicyVersion.from_json(bad)
-    hb = Heartbeat("w", 12, "host", 3, 100, 4, 2.0, "reinvent_base")
+    hb = Heartbeat(
+        worker_id="w", pid=12, host="host", policy_version=3, env_steps=100, segments=4, time=2.0, track="reinvent_base"
+    )
     assert Heartbeat.from_json(hb.to_json()) == hb
-    with pytest.raises(ProtocolError):
-        Heartbeat.from_json(b'{"worker_id": "w"}')
+    for bad in (b'{"worker_id": "w"}', hb.to_json().replace('"pid":12', '"pid":"12"').encode()):
+        with pytest.raises(ProtocolError, match="bad_heartbeat"):
+            Heartbeat.from_json(bad)
 
 
 def test_keys_live_under_one_prefix_and_run_ids_are_checked():

@@ -170,7 +170,10 @@ def test_pickle_bomb_checkpoint_is_refused_by_racer_eval_and_by_a_worker(tmp_pat
 
     # A worker told to act with it refuses it too.
     r = redis.Redis.from_url(redis_url)
-    r.set(Keys("bombed").policy, PolicyVersion(0, "runs/bombed/checkpoints/000000000.pt", 0.0).to_json())
+    r.set(
+        Keys("bombed").policy,
+        PolicyVersion(version=0, checkpoint_key="runs/bombed/checkpoints/000000000.pt", created=0.0).to_json(),
+    )
     worker = RolloutWorker(WorkerOptions("bombed", redis_url, store, worker_index=0, policy_wait_s=5))
     with pytest.raises(CheckpointError, match="refused"):
         worker.start()

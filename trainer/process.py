@@ -350,7 +350,7 @@ class Trainer:
 
     def _publish(self) -> None:
         key = checkpoint_key(self.run.run_id, self.version)
-        pv = PolicyVersion(self.version, key, time.time()).to_json()
+        pv = PolicyVersion(version=self.version, checkpoint_key=key, created=time.time()).to_json()
         pipe = self.redis.pipeline(transaction=False)
         pipe.set(self.keys.policy, pv)
         pipe.publish(self.keys.policy_channel, pv)
@@ -665,7 +665,7 @@ class Trainer:
             if raw is None:
                 continue  # expired between SCAN and GET
             try:
-                out.append(Heartbeat.from_json(raw).__dict__)
+                out.append(Heartbeat.from_json(raw).model_dump())
             except ProtocolError:
                 self.stats.drop("bad_heartbeat")
         self._note_silent({w["worker_id"]: w for w in out})
