@@ -763,7 +763,7 @@ def tracks_show(
     camera: Annotated[str, typer.Option(help="Camera path: ground or mujoco.")] = "ground",
 ) -> None:
     """Write a PNG: the track from above with the car at a start waypoint, and its camera view."""
-    from sim.views import write_track_picture
+    from racer.plots import write_track_picture
 
     try:
         write_track_picture(track, png, start, camera)

@@ -388,3 +388,19 @@ def plot_run(run_id: str, runs: RunStore, out_dir: str | Path) -> list[Path]:
     else:
         log.warning("run %r has no evaluations yet: skipped trajectories.png", run_id)
     return written
+
+
+def write_track_picture(track: str, png: str | Path, start: int = 0, camera: str = "ground") -> None:
+    """PNG of the track from above with the car at waypoint ``start``, and the car's camera view beside it."""
+    import cv2
+
+    from sim.env import RacerEnv
+    from sim.views import side_by_side, top_down
+
+    env = RacerEnv(track=track, camera=camera)
+    obs, _ = env.reset(seed=0, options={"start_index": start, "reverse": False})
+    top = top_down(env.track, env.texture, env.frame, [env.physics.pose])
+    picture = side_by_side(top, obs[..., 0], f"{env.track.name}  {env.track.length:.2f} m")
+    env.close()
+    if not cv2.imwrite(str(png), cv2.cvtColor(picture, cv2.COLOR_RGB2BGR)):
+        raise OSError(f"could not write {str(png)!r}")

@@ -41,6 +41,7 @@ from sim.texture import (
     random_palette,
 )
 from sim.track import Track, load_track
+from sim.views import top_down
 from sim.world import CONTROL_HZ, build_model
 
 OBS_SHAPE = (120, 160, 1)
@@ -143,8 +144,6 @@ class RacerEnv(gym.Env):
         """Top-down RGB view of the track with the car (``render_mode="rgb_array"``)."""
         if self.render_mode != "rgb_array":
             return None
-        from sim.views import top_down
-
         return top_down(self.track, self.texture, self.frame, [self.physics.pose])
 
     def close(self) -> None:

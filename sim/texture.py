@@ -153,11 +153,6 @@ def add_noise_texture(img: np.ndarray, strength: float, rng: np.random.Generator
     return np.clip(out, 0, 255).astype(np.uint8)
 
 
-def to_gray(img: np.ndarray) -> np.ndarray:
-    """RGB → grayscale with the same weights as the camera's conversion."""
-    return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-
-
 class RoadMask:
     """Is a point on the road? A raster of the road polygon at the texture's resolution (5 mm by default).
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -46,16 +45,3 @@ def side_by_side(left_rgb: np.ndarray, camera_gray: np.ndarray, label: str = "")
     if label:
         cv2.putText(out, label, (10, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2, cv2.LINE_AA)
     return out
-
-
-def write_track_picture(track: str, png: str | Path, start: int = 0, camera: str = "ground") -> None:
-    """PNG of the track from above with the car at waypoint ``start``, and the car's camera view beside it."""
-    from sim.env import RacerEnv
-
-    env = RacerEnv(track=track, camera=camera)
-    obs, _ = env.reset(seed=0, options={"start_index": start, "reverse": False})
-    top = top_down(env.track, env.texture, env.frame, [env.physics.pose])
-    picture = side_by_side(top, obs[..., 0], f"{env.track.name}  {env.track.length:.2f} m")
-    env.close()
-    if not cv2.imwrite(str(png), cv2.cvtColor(picture, cv2.COLOR_RGB2BGR)):
-        raise OSError(f"could not write {str(png)!r}")

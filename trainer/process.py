@@ -771,8 +771,3 @@ def run_trainer(run: RunConfig, opts: TrainerOptions, stop: threading.Event | No
         if trainer.tb is not None:
             trainer.tb.close()
         trainer._workdir.cleanup()
-
-
-def read_run_file(path: str | Path | None) -> bytes | None:
-    """Bytes of a user file to store in the run, or None."""
-    return None if path is None else Path(path).read_bytes()
