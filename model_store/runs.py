@@ -8,6 +8,8 @@
                                                    the optimizer's state, kept only where a resume (the newest) or
                                                    the collapse guard's roll-back (the best) needs it
     runs/{run_id}/latest.json, best.json           pointers: {"version": N, ...that checkpoint's metadata}
+    runs/{run_id}/metrics.jsonl                    one JSON row per training iteration (the trainer's)
+    runs/{run_id}/evaluations/{version:09d}.json   one per evaluated checkpoint (the evaluator's)
     runs/{run_id}/{name}                           run files: model_metadata.json, reward_function.py, ...
 
 A checkpoint is whole once its .json exists: the .pt is written first, then the .json, then (last) the pointer, so a
@@ -29,6 +31,16 @@ POINTERS: tuple[str, ...] = ("latest", "best")
 
 _CKPT_NAME = re.compile(r"^(\d{9})\.(pt|json)$")
 _OPTIMIZER_NAME = re.compile(r"^(\d{9})\.optimizer\.pt$")
+METRICS_FILE = "metrics.jsonl"
+"""The run file of training metrics, one JSON object per iteration."""
+EVALUATIONS_DIR = "evaluations"
+"""The run folder of evaluation records."""
+_EVAL_NAME = re.compile(r"^(\d{9})\.json$")
+
+
+def evaluation_name(version: int) -> str:
+    """Run file name of checkpoint ``version``'s evaluation: ``evaluations/{version:09d}.json``."""
+    return f"{EVALUATIONS_DIR}/{_check_version(version):09d}.json"
 
 
 def _check_version(version: int) -> int:
@@ -185,6 +197,12 @@ class RunStore:
             self.prune_checkpoints(run_id, keep_last)
             self.keep_optimizer_states(run_id, {versions[-1]})
         return {"run_id": run_id, "checkpoints": doomed, "optimizer_states": optimizers, "bytes": freed}
+
+    def evaluation_versions(self, run_id: str) -> list[int]:
+        """Checkpoint versions that have an evaluation record, ascending."""
+        prefix = f"{run_prefix(run_id)}{EVALUATIONS_DIR}/"
+        names = (info.key[len(prefix) :] for info in self.store.list(prefix))
+        return sorted(int(m.group(1)) for m in map(_EVAL_NAME.match, names) if m)
 
     def load_optimizer(self, run_id: str, version: int) -> bytes | None:
         """The optimizer state saved with checkpoint ``version``, or None where it was not kept."""

@@ -8,14 +8,15 @@ import statistics
 import tempfile
 import threading
 import time
-from pathlib import Path
 
 import redis
 from rich.console import Console
 
 from common.keys import Keys
+from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
+from racer.plots import metrics_rows
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
 from trainer.process import Trainer, TrainerOptions
@@ -115,8 +116,7 @@ def bench_loop(workers: int, duration_s: float, track: str = "reinvent_base", hy
         wall = time.monotonic() - t0
         monitor.halt.set()
         monitor.join()
-        metrics = Path(store, "runs", run_id, "metrics.jsonl")
-        rows = [json.loads(line) for line in metrics.read_text().splitlines()] if metrics.exists() else []
+        rows = metrics_rows(run_id, RunStore(LocalStore(store)))
     prop = monitor.propagation_s(workers)
     return {
         "workers": workers,

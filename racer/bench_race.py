@@ -31,7 +31,7 @@ from common.car_calibration import load_car
 from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
-from racer.plots import read_evaluations, read_metrics
+from racer.plots import metrics_rows, read_evaluations
 from racer.runconfig import build_run
 from sim.reward import example_path
 
@@ -67,18 +67,10 @@ def _files(folder: Path) -> tuple[Path, Path]:
     return space, hp
 
 
-def _rows(run_id: str, runs: RunStore) -> list[dict]:
-    """The run's metrics rows (none when it never finished an update)."""
-    try:
-        return read_metrics(run_id, runs)
-    except ValueError:
-        return []
-
-
 def race_curve(run_id: str, runs: RunStore, t0: float) -> list[dict]:
     """Per evaluated checkpoint, in version order: version, time made (s from ``t0``), env steps, completion,
     mean and best lap (s)."""
-    made = {int(r["policy_version"]): (float(r["time"]) - t0, int(r["env_steps"])) for r in _rows(run_id, runs)}
+    made = {int(r["policy_version"]): (float(r["time"]) - t0, int(r["env_steps"])) for r in metrics_rows(run_id, runs)}
     curve = []
     for record in read_evaluations(run_id, runs):
         version = int(record["version"])
@@ -140,7 +132,7 @@ def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float) -> dict[str
         run_train(run, opts, files, Console(file=io.StringIO()))
         runs = RunStore(LocalStore(Path(tmp, "store")))
         curve = race_curve(run_id, runs, t0)
-        rows = _rows(run_id, runs)
+        rows = metrics_rows(run_id, runs)
     figures = seed_figures(curve, limit_s)
     figures.update(seed=seed, rollbacks=int(rows[-1].get("rollbacks", 0)) if rows else 0, curve=curve)
     return figures

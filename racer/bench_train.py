@@ -18,21 +18,21 @@ Env steps to lap are the env steps the learner had consumed when it made that po
 from __future__ import annotations
 
 import io
-import json
 import statistics
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from functools import partial
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from rich.console import Console
 
 from common.config import EnvConfig, RunConfig
+from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
+from racer.plots import metrics_rows, read_evaluations
 from racer.runconfig import build_run
 from trainer.evaluator import EvalSettings, evaluate, summarize
 
@@ -110,18 +110,14 @@ def _lap_run(system: str, seed: int, curve: list[dict], wall_s: float, batch_ste
 
 
 # --- racer ------------------------------------------------------------------------------------------------
-def _metrics(run_dir: Path) -> list[dict]:
-    path = run_dir / "metrics.jsonl"
-    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
-
-
-def racer_curve(run_dir: Path, t0: float) -> list[dict]:
-    """The evaluated policies of a finished ``racer train`` run in a local store, in version order, with the
-    time each policy was made (its metrics row) relative to ``t0`` (a ``time.time()``)."""
-    made = {int(row["policy_version"]): (float(row["time"]), int(row["env_steps"])) for row in _metrics(run_dir)}
+def racer_curve(run_id: str, runs: RunStore, t0: float) -> list[dict]:
+    """The evaluated policies of a finished ``racer train`` run, in version order, with the time each policy was
+    made (its metrics row) relative to ``t0`` (a ``time.time()``)."""
+    made = {
+        int(row["policy_version"]): (float(row["time"]), int(row["env_steps"])) for row in metrics_rows(run_id, runs)
+    }
     curve = []
-    for path in sorted((run_dir / "evaluations").glob("*.json")):
-        record = json.loads(path.read_text())
+    for record in read_evaluations(run_id, runs):
         version = int(record["version"])
         if version not in made:  # version 0 (the untrained policy) has no metrics row
             continue
@@ -161,8 +157,9 @@ def run_racer(settings: BenchTrainSettings, seed: int) -> LapRun:
         t0 = time.time()
         run_train(run, opts, files, Console(file=io.StringIO()))
         wall = time.time() - t0
-        curve = racer_curve(Path(store, "runs", run_id), t0)
-        rows = _metrics(Path(store, "runs", run_id))
+        runs = RunStore(LocalStore(store))
+        curve = racer_curve(run_id, runs, t0)
+        rows = metrics_rows(run_id, runs)
     batch = int(statistics.median(int(row["batch_steps"]) for row in rows)) if rows else 0
     return _lap_run("racer", seed, curve, wall, batch, [float(row["time"]) - t0 for row in rows])
 

@@ -73,7 +73,7 @@ def write_video(runs: RunStore, run: RunConfig, env_cfg, version: int, settings:
 def models_table(store: str, s3_endpoint: str | None, run_id: str | None) -> list[dict]:
     """``racer models ls``: each checkpoint's metadata (without the bulky run config) and its evaluation figures."""
     from model_store import StoreKeyError, list_models
-    from trainer.evaluator import evaluation_key
+    from model_store.runs import evaluation_name
 
     obj_store = open_store(store, s3_endpoint)
     runs = RunStore(obj_store)
@@ -81,7 +81,7 @@ def models_table(store: str, s3_endpoint: str | None, run_id: str | None) -> lis
     for meta in list_models(obj_store, run_id):
         row = {k: v for k, v in meta.items() if k != "config"}
         try:
-            ev = json.loads(runs.read_file(row["run_id"], evaluation_key(int(row["version"]))))
+            ev = json.loads(runs.read_file(row["run_id"], evaluation_name(int(row["version"]))))
             row["evaluation"] = {k: ev.get(k) for k in ("completion_rate", "mean_progress", "best_lap_s", "score")}
         except (StoreKeyError, ValueError):
             row["evaluation"] = None

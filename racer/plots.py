@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import logging
-import re
 from pathlib import Path
 from typing import Any, Literal
 
@@ -25,7 +24,7 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from model_store.runs import RunStore, run_prefix
+from model_store.runs import METRICS_FILE, RunStore, evaluation_name, run_prefix
 from model_store.store import StoreError, StoreKeyError
 from sim.texture import TextureFrame, draw_surface
 from sim.track import load_track
@@ -43,9 +42,6 @@ BACKGROUND_PPM = 50.0
 SPEED_CMAP = "cool"
 """Colormap of the trajectories: cyan→magenta stands out on the green, grey, white and yellow of the track."""
 
-EVALUATIONS_DIR = "evaluations"
-METRICS_FILE = "metrics.jsonl"
-_EVAL_NAME = re.compile(r"^(\d{9})\.json$")
 
 Version = int | Literal["best", "latest"] | str | None
 
@@ -82,16 +78,22 @@ def _json_object(text: str | bytes) -> dict[str, Any] | None:
     return obj if isinstance(obj, dict) else None
 
 
+def metrics_rows(run_id: str, runs: RunStore) -> list[dict[str, Any]]:
+    """The rows of a run's metrics.jsonl, or none when it never finished an update (the benchmarks' reader)."""
+    try:
+        return read_metrics(run_id, runs)
+    except ValueError:
+        return []
+
+
 def evaluation_versions(run_id: str, runs: RunStore) -> list[int]:
     """Checkpoint versions that have an evaluation file, ascending."""
-    prefix = f"{run_prefix(run_id)}{EVALUATIONS_DIR}/"
-    names = (info.key[len(prefix) :] for info in runs.store.list(prefix))
-    return sorted(int(m.group(1)) for m in map(_EVAL_NAME.match, names) if m)
+    return runs.evaluation_versions(run_id)
 
 
 def read_evaluation(run_id: str, runs: RunStore, version: int) -> dict[str, Any]:
     """The evaluation of checkpoint ``version``; StoreError if it is missing or not a JSON object."""
-    name = f"{EVALUATIONS_DIR}/{version:09d}.json"
+    name = evaluation_name(version)
     evaluation = _json_object(runs.read_file(run_id, name))
     if evaluation is None:
         raise StoreError(f"malformed evaluation {runs.store.key_uri(run_prefix(run_id) + name)}")

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from common.hyperparams import Hyperparameters
+from model_store import LocalStore, RunStore
 from racer.bench_train import (
     BenchTrainSettings,
     LapRun,
@@ -79,7 +80,7 @@ def test_racer_curve_times_each_policy_from_its_metrics_row(tmp_path: Path) -> N
         record = {"version": version, "completion_rate": completion, "mean_progress": progress, "best_lap_s": best}
         record["created"] = 1000.0 + 20 * (version + 1)
         (run / "evaluations" / f"{version:09d}.json").write_text(json.dumps(record))
-    curve = racer_curve(run, t0=1000.0)
+    curve = racer_curve("r", RunStore(LocalStore(tmp_path)), t0=1000.0)
     assert [p["version"] for p in curve] == [1, 2]  # version 0, the untrained policy, was never "made"
     assert [p["time_s"] for p in curve] == [10.0, 25.5]
     assert [p["confirmed_s"] for p in curve] == [40.0, 60.0]

@@ -17,9 +17,10 @@ from common.keys import Keys
 from common.policy import checkpoint_from_bytes, state_dict_from_bytes
 from common.protocol import PolicyVersion
 from model_store import RunStore, open_store
+from model_store.runs import METRICS_FILE
 from tests.test_training_loop import fill, start
 from trainer.evaluator import _SUMMARY_KEYS, _report, save_evaluation, score
-from trainer.process import METRICS_FILE, CollapseWatch, Stability, Trainer, TrainerOptions, is_collapsed
+from trainer.process import CollapseWatch, Stability, Trainer, TrainerOptions, is_collapsed
 
 # --- the rule ------------------------------------------------------------------------------------------------
 

@@ -11,10 +11,11 @@ from common.keys import Keys
 from common.policy import checkpoint_from_bytes
 from common.protocol import PolicyVersion
 from model_store import RunStore, open_store
+from model_store.runs import METRICS_FILE
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
 from tests.conftest import S3_BUCKET
-from trainer.process import METRICS_FILE, Trainer, TrainerOptions
+from trainer.process import Trainer, TrainerOptions
 
 
 @pytest.fixture

@@ -35,6 +35,7 @@ from common.retry import Outage, redis_transient
 from common.simtrace import SimTraceRecorder, evaluation_stamp, simtrace_key
 from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
+from model_store.runs import evaluation_name
 from sim.env import OBS_SHAPE, RacerEnv
 
 log = logging.getLogger("racer.evaluator")
@@ -236,11 +237,6 @@ def load_model(runs: RunStore, run: RunConfig, env_cfg: EnvConfig, version: int 
     return model, meta
 
 
-def evaluation_key(version: int) -> str:
-    """Name of an evaluation's JSON inside the run folder."""
-    return f"evaluations/{version:09d}.json"
-
-
 def evaluate_checkpoint(
     runs: RunStore,
     run: RunConfig,
@@ -269,11 +265,11 @@ def evaluate_checkpoint(
 def save_evaluation(runs: RunStore, record: dict) -> bool:
     """Store an evaluation; move the ``best`` pointer if it scores higher than the current best. True if moved."""
     run_id, version = record["run_id"], record["version"]
-    runs.write_file(run_id, evaluation_key(version), json.dumps(record))
+    runs.write_file(run_id, evaluation_name(version), json.dumps(record))
     best = runs.pointer(run_id, "best")
     if best is not None:
         try:
-            previous = json.loads(runs.read_file(run_id, evaluation_key(int(best["version"]))))["score"]
+            previous = json.loads(runs.read_file(run_id, evaluation_name(int(best["version"]))))["score"]
         except (StoreKeyError, KeyError, ValueError):
             previous = float("-inf")
         if record["score"] <= previous:

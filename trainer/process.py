@@ -45,15 +45,13 @@ from common.redis_util import connect_checked, redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
 from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
-from model_store.runs import checkpoint_key
+from model_store.runs import METRICS_FILE, checkpoint_key, evaluation_name
 from sim.env import RacerEnv
-from trainer.evaluator import evaluation_key
 from trainer.ppo import PPOBatch, compute_gae, scheduled, update
 
 log = logging.getLogger("racer.trainer")
 
 
-METRICS_FILE = "metrics.jsonl"
 """Per-iteration figures of a run, one JSON object a line, in the run's folder of the store."""
 
 EVALUATION_WINDOW = 64
@@ -506,7 +504,7 @@ class Trainer:
             return None
         version = int(pointer["version"])
         try:
-            record = json.loads(self.runs.read_file(self.run.run_id, evaluation_key(version)))
+            record = json.loads(self.runs.read_file(self.run.run_id, evaluation_name(version)))
             return version, float(record["completion_rate"])
         except (StoreKeyError, KeyError, TypeError, ValueError):
             return None
