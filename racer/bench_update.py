@@ -1,6 +1,6 @@
 """``racer bench update``: the cost of one PPO minibatch step (forward, backward, Adam) in each trainer setting.
 
-The trainer's update is most of the time to a lap (README, Speed), so this is the figure its settings are
+The trainer's update is most of the time to a lap (docs/speed.md), so this is the figure its settings are
 chosen by: the trunk's precision (fp32 or bf16 autocast) and Adam's per-parameter loop or its fused kernel.
 All settings are timed in one process, interleaved run by run, so that a noisy machine affects them alike.
 """

@@ -570,7 +570,7 @@ def calibrate_cmd(
     track: Annotated[str | None, typer.Option(help="Track the logs were driven on (for the picture).")] = None,
     max_windows: Annotated[int, typer.Option(min=20, help="Replay windows to fit on (and to choose on).")] = 400,
     timing: Annotated[
-        str, typer.Option(help="Row durations: auto, nominal, logged or logged_previous (see the README).")
+        str, typer.Option(help="Row durations: auto, nominal, logged or logged_previous (see docs/calibration.md).")
     ] = "auto",
 ) -> None:
     """Fit the car to measured logs (effects, values, error before/after on held-out episodes), or --apply one."""

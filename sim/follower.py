@@ -22,8 +22,8 @@ Every control period:
    (sliding, load transfer); the simulator does not.
 3. The best checked plan's first command is sent.
 
-Measured on the eleven bundled loops (README, ``racer limit``): the default car is driven within 4 % of its limit
-on every one (pure pursuit managed 9 of 11 within 5 %). The Gazebo car, driven at its limit, may leave the track
+Measured on the eleven bundled loops (docs/racing.md, ``racer limit``): the default car is driven within 4 % of its
+limit on every one (pure pursuit managed 9 of 11 within 5 %). The Gazebo car, driven at its limit, may leave the track
 in one bend and not on a second try a little slower: ``drive_line`` tries the paces of :data:`PACES` in turn.
 """
 

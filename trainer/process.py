@@ -709,7 +709,7 @@ def resolve_precision(precision: str) -> Precision:
 
 def make_optimizer(model: torch.nn.Module, lr: float, l2: float) -> torch.optim.Adam:
     """Adam with its fused kernel: the same update as the per-parameter loop, one vectorized pass over the 6 M
-    weights. The loop took a quarter of each minibatch step on the CPU (README, Speed)."""
+    weights. The loop took a quarter of each minibatch step on the CPU (docs/speed.md)."""
     return torch.optim.Adam(model.parameters(), lr=lr, weight_decay=l2, fused=True)
 
 
