@@ -18,13 +18,14 @@ deepracer-utils' and not ours: worker folders are one character (its path regex 
 only worker indexes 0-9 load and a folder ``10`` or above makes its whole load fail (``racer train`` numbers its
 workers 0..N-1; give compose workers ``RACER_WORKER_INDEX`` 0-9, not the random default), worker 0 must have written
 a file for the folder to be recognised, and only ``0-iteration.csv`` is read in an evaluation folder. It reads
-``model/model_metadata.json`` and ``ip/hyperparameters.json`` for metadata; racer keeps those at the top of the run,
-so ``load()`` warns that they are missing and loads the traces anyway.
+``model/model_metadata.json`` and ``ip/hyperparameters.json`` for metadata; the trainer writes copies of the run's
+files there (``Trainer._write_run_files``), so ``load()`` finds them.
 
-Rows follow DeepRacer's convention (SOURCES.md): row k is the pose the car was in when it chose action k, the reward
-computed at that pose, and the action chosen there, so the motion from row k to row k+1 is caused by the action of
-row k. The first row of an episode is ``prepare`` (car at rest, steps 1, reward 0); racer's env step t is DeepRacer's
-step t+1. No action is chosen at the final pose of an episode, so its row repeats the last action.
+Rows follow DeepRacer's convention (as in its own sim-traces, tests/data/logs): row k is the pose the car was in
+when it chose action k, the reward computed at that pose, and the action chosen there, so the motion from row k to
+row k+1 is caused by the action of row k. The first row of an episode is ``prepare`` (car at rest, steps 1, reward
+0); racer's env step t is DeepRacer's step t+1. No action is chosen at the final pose of an episode, so its row
+repeats the last action.
 
 Iterations: DeepRacer's N-iteration.csv holds the episodes played with policy N. racer's workers switch policy
 between segments, in the middle of an episode, so an episode belongs to the iteration (policy version) the

@@ -27,13 +27,13 @@ from sim.track import load_track
 from tests.conftest import S3_BUCKET
 from tests.test_training_loop import fill, start
 
-# The header as SOURCES.md documents it (copied: tests do not read /work/shared).
+# The header of DeepRacer's own sim-trace CSVs (the simapp's training-simtrace files).
 SOURCES_HEADER = (
     "episode,steps,X,Y,yaw,steer,throttle,action,reward,done,all_wheels_on_track,progress,closest_waypoint,"
     "track_len,tstamp,episode_status,pause_duration"
 )
-# Rows copied from DeepRacer's own sim-traces (the fit logs of SOURCES.md): a ROS1 console training (discrete
-# actions) and the first 17 columns of a DeepRacer-on-AWS 2026 training (continuous actions).
+# Rows copied from DeepRacer's own sim-traces (DeepRacer's public Gazebo logs, tests/data/logs): a ROS1 console
+# training (discrete actions) and the first 17 columns of a DeepRacer-on-AWS 2026 training (continuous actions).
 DEEPRACER_ROWS = [
     "0,1.0,3.1998969552234997,0.6831242627772308,0.18796826230461333,20.0,2.0,11,0.0,False,True,"
     "0.7914787193255852,1,17.709159380834848,20.202,prepare,0.0",
