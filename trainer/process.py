@@ -51,9 +51,6 @@ from trainer.ppo import PPOBatch, compute_gae, scheduled, update
 
 log = logging.getLogger("racer.trainer")
 
-
-"""Per-iteration figures of a run, one JSON object a line, in the run's folder of the store."""
-
 EVALUATION_WINDOW = 64
 """Newest evaluation summaries the collapse guard reads from Redis each time: the evaluator adds one per
 checkpoint it scores (tens of seconds each), so far fewer than this arrive between two looks a second apart."""
