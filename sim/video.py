@@ -29,7 +29,7 @@ CAMERA_ZOOM = 3
 H264, FALLBACK = "avc1", "mp4v"
 """The codec wanted (H.264, with PyAV) and the one OpenCV writes where that is missing (MPEG-4 part 2)."""
 H264_CRF = 23
-"""libx264's constant quality (its default: visually clean at a few hundred kB per minute at 960×360)."""
+"""libx264's constant-quality setting (23 is its own default)."""
 DEFAULT_MAX_STEPS = 3000
 """``record_episode``'s step cap: the env's default time limit (200 s at 15 Hz)."""
 _TEXT = (cv2.FONT_HERSHEY_SIMPLEX, 0.6, 1)  # font, scale, thickness of the overlay
