@@ -163,9 +163,7 @@ class RunStore:
         A checkpoint of DeepRacer's CNN with its Adam state is ~70 MB, so a long run keeps a window, as
         DeepRacer-for-Cloud does. The .json goes first, so a reader never finds metadata without weights.
         """
-        versions = sorted(self._versions(run_id))
-        pinned = {(self.pointer(run_id, name) or {}).get("version") for name in POINTERS}
-        doomed = [v for v in versions[: max(0, len(versions) - keep_last)] if v not in pinned]
+        doomed = self._prunable(run_id, sorted(self._versions(run_id)), keep_last)
         for v in doomed:
             self.store.delete(checkpoint_meta_key(run_id, v))
             self.store.delete(checkpoint_key(run_id, v))
@@ -181,13 +179,8 @@ class RunStore:
         versions = sorted(self._versions(run_id))
         if not versions:
             raise self._missing(run_id, "checkpoint")
-        pinned = {(self.pointer(run_id, name) or {}).get("version") for name in POINTERS}
-        doomed = [v for v in versions[: max(0, len(versions) - keep_last)] if v not in pinned]
-        optimizers = sorted(
-            v
-            for v in (int(m.group(1)) for m in (_OPTIMIZER_NAME.match(k[len(prefix) :]) for k in sizes) if m)
-            if v != versions[-1] and v not in doomed
-        )
+        doomed = self._prunable(run_id, versions, keep_last)
+        optimizers = [v for v in self._optimizer_versions(run_id) if v != versions[-1] and v not in doomed]
         freed = sum(
             sizes.get(key, 0)
             for v in doomed
@@ -197,6 +190,17 @@ class RunStore:
             self.prune_checkpoints(run_id, keep_last)
             self.keep_optimizer_states(run_id, {versions[-1]})
         return {"run_id": run_id, "checkpoints": doomed, "optimizer_states": optimizers, "bytes": freed}
+
+    def _prunable(self, run_id: str, versions: list[int], keep_last: int) -> list[int]:
+        """Of ``versions`` (ascending), those older than the newest ``keep_last`` that no pointer names."""
+        pinned = {(self.pointer(run_id, name) or {}).get("version") for name in POINTERS}
+        return [v for v in versions[: max(0, len(versions) - keep_last)] if v not in pinned]
+
+    def _optimizer_versions(self, run_id: str) -> list[int]:
+        """Versions whose optimizer state is stored, ascending."""
+        prefix = f"{run_prefix(run_id)}checkpoints/"
+        found = (_OPTIMIZER_NAME.match(info.key[len(prefix) :]) for info in self.store.list(prefix))
+        return sorted(int(m.group(1)) for m in found if m)
 
     def evaluation_versions(self, run_id: str) -> list[int]:
         """Checkpoint versions that have an evaluation record, ascending."""
@@ -214,9 +218,7 @@ class RunStore:
         The optimizer (Adam's two moments) is twice the size of the weights, and only a resume (the newest
         checkpoint) or a roll-back (the best) reads it: a run keeps the weights of its last few checkpoints and
         the optimizer state of one or two."""
-        prefix = f"{run_prefix(run_id)}checkpoints/"
-        found = (_OPTIMIZER_NAME.match(info.key[len(prefix) :]) for info in self.store.list(prefix))
-        doomed = sorted(v for v in (int(m.group(1)) for m in found if m) if v not in keep)
+        doomed = [v for v in self._optimizer_versions(run_id) if v not in keep]
         for v in doomed:
             self.store.delete(optimizer_key(run_id, v))
         return doomed
