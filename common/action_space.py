@@ -14,6 +14,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from common.errors import UserError
 from common.jsonfile import read_json_object
 
 MAX_STEERING_DEG = 30.0
@@ -21,7 +22,7 @@ MIN_SPEED_MPS = 0.1
 MAX_SPEED_MPS = 4.0
 
 
-class ActionSpaceError(ValueError):
+class ActionSpaceError(UserError, ValueError):
     """A model_metadata.json that cannot be used; the message names the file and the problem."""
 
 

@@ -31,6 +31,8 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from common.errors import UserError
+
 
 @dataclass(frozen=True)
 class ParamSpec:
@@ -151,7 +153,7 @@ CANDIDATE_EFFECTS = tuple(name for name, spec in EFFECTS.items() if spec.candida
 """Effects ``racer calibrate`` tries unless told which (``--effect``)."""
 
 
-class CalibrationError(ValueError):
+class CalibrationError(UserError, ValueError):
     """A calibration file that cannot be used; the one-line message names the file and the bad value."""
 
 

@@ -11,7 +11,12 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from common.car_calibration import CarCalibration
+from common.errors import OptionError, UserError
 from common.hyperparams import Hyperparameters
+
+FRAME_HEIGHT, FRAME_WIDTH = 120, 160
+"""The camera frame a policy sees, pixels: DeepRacer's 160×120 grayscale. The camera renders it, the network is
+built for it, an exported model takes it."""
 
 NetworkName = Literal["shallow", "deep"]
 
@@ -53,9 +58,9 @@ PRECISIONS = ("auto", "fp32", "bf16")
 
 
 def check_precision(precision: str) -> str:
-    """``precision`` if it is one of PRECISIONS; ValueError naming it otherwise."""
+    """``precision`` if it is one of PRECISIONS; OptionError naming it otherwise."""
     if precision not in PRECISIONS:
-        raise ValueError(f"precision must be {', '.join(PRECISIONS)} (got {precision!r})")
+        raise OptionError(f"precision must be {', '.join(PRECISIONS)} (got {precision!r})")
     return precision
 
 
@@ -147,7 +152,7 @@ class EnvConfig(_Strict):
     Held inline, so a run's config.json carries it to every worker; no effects = the car as modelled."""
 
 
-class PretrainedError(ValueError):
+class PretrainedError(UserError, ValueError):
     """A run's ``pretrained`` source it cannot start from (missing, another action space, other network shapes);
     the one-line message names the source and what differs. Raised before start and by the trainer's load."""
 

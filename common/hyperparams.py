@@ -22,6 +22,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, ValidationInfo, field_validator
 
+from common.errors import UserError
 from common.jsonfile import read_json_object
 
 # The keys DeepRacer itself writes, in the order its console writes them.
@@ -80,7 +81,7 @@ HUBER = "huber"
 MEAN_SQUARED_ERROR = "mean squared error"
 
 
-class HyperparametersError(ValueError):
+class HyperparametersError(UserError, ValueError):
     """A hyperparameters file that cannot be used; the one-line message names the file and the bad key."""
 
 

@@ -8,6 +8,8 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
+from common.errors import first_validation_error
+
 M = TypeVar("M", bound=BaseModel)
 
 
@@ -34,6 +36,4 @@ def load_json_model(path: str | Path, label: str, model: type[M], error: type[Ex
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(v) for v in err["loc"]) or "(top level)"
-        raise error(f"{label} {str(path)!r}: {where}: {err['msg']}") from None
+        raise error(f"{label} {str(path)!r}: {first_validation_error(exc)}") from None

@@ -4,15 +4,17 @@ from __future__ import annotations
 
 import re
 
+from common.errors import OptionError
+
 PREFIX = "racer"
 RUN_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 """What a run id may be: it is part of Redis keys and store paths, so no ':', '/' or '..'."""
 
 
 def check_run_id(run_id: str) -> str:
-    """Return ``run_id`` if it is a valid run id (letters, digits, ``._-``; ≤ 128), else raise ValueError naming it."""
+    """Return ``run_id`` if it is a valid run id (letters, digits, ``._-``; ≤ 128), else raise OptionError naming it."""
     if not isinstance(run_id, str) or not RUN_ID.match(run_id):
-        raise ValueError(f"invalid run id {run_id!r}: use 1-128 of A-Z a-z 0-9 . _ - starting with a letter or digit")
+        raise OptionError(f"invalid run id {run_id!r}: use 1-128 of A-Z a-z 0-9 . _ - starting with a letter or digit")
     return run_id
 
 
@@ -32,11 +34,6 @@ class Keys:
     def policy(self) -> str:
         """String key: JSON of the newest policy version (PolicyVersion)."""
         return f"{self.base}:policy"
-
-    @property
-    def policy_channel(self) -> str:
-        """Pub/sub channel: a PolicyVersion JSON each time a new policy is published."""
-        return f"{self.base}:policy:updates"
 
     def heartbeat(self, worker_id: str) -> str:
         """String key with a TTL: a worker's last heartbeat (Heartbeat JSON)."""
@@ -67,8 +64,3 @@ class Keys:
         """String key with a TTL, present while the trainer runs a PPO update (value: the version it trains from).
         Workers whose next segment would be too old to use wait instead of burning the CPU the update needs."""
         return f"{self.base}:training"
-
-    @property
-    def stop(self) -> str:
-        """String key: set to ask every process of the run to stop (value: the reason)."""
-        return f"{self.base}:stop"

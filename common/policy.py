@@ -18,7 +18,8 @@ distribution: the env clips them. The Gaussian's mean is mid + half * head(h) an
 with mid and half the centre and half-width of the action range, so one initialization suits degrees and m/s.
 
 Checkpoints are serialized with ``torch.save`` and read back with ``torch.load(weights_only=True)``, which
-refuses any pickled object other than tensors and plain containers.
+refuses any pickled object other than tensors and plain containers. ``load_policy`` is the one way to get a stored
+checkpoint's network for acting (the evaluator, ``racer eval``, ``racer export``).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from __future__ import annotations
 import io
 import math
 import pickle
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import torch
@@ -35,7 +36,13 @@ from torch.distributions import Categorical, Distribution, Independent, Normal
 
 # The architecture's config lives in common.config (no torch), so that processes that only read configs
 # (racer train's launcher) start without importing torch; re-exported here, where the network is built.
-from common.config import NetworkName, PolicyConfig, network_from_metadata  # noqa: F401 (re-exported)
+from common.config import FRAME_HEIGHT, FRAME_WIDTH, NetworkName, PolicyConfig, network_from_metadata  # noqa: F401
+from common.errors import UserError
+
+if TYPE_CHECKING:
+    from common.action_space import ActionSpace
+    from common.config import RunConfig
+    from model_store.runs import RunStore
 
 Precision = Literal["fp32", "bf16"]
 ActionKind = Literal["discrete", "continuous"]
@@ -49,7 +56,7 @@ HIDDEN = 512
 """Width of the dense layer after the convolutions, units."""
 
 
-class CheckpointError(ValueError):
+class CheckpointError(UserError, ValueError):
     """Bytes that are not a safe, well-formed state dict or checkpoint."""
 
 
@@ -279,6 +286,31 @@ def checkpoint_from_bytes(data: bytes) -> tuple[dict[str, Any], dict[str, Any] |
     if optimizer is not None and not isinstance(optimizer, dict):
         raise CheckpointError(f"checkpoint 'optimizer' is a {type(optimizer).__name__}, not a state dict")
     return ckpt["model"], optimizer
+
+
+def load_policy(
+    runs: RunStore,
+    run: RunConfig | str,
+    actions: ActionSpace,
+    checkpoint: int | str,
+    *,
+    frame: tuple[int, int] = (FRAME_HEIGHT, FRAME_WIDTH),
+) -> tuple[ActorCritic, dict[str, Any]]:
+    """A stored checkpoint's network, ready to act, and the checkpoint's metadata.
+
+    ``run`` is the run's config or its id (its config.json is then read); ``actions`` the action space the network
+    acts in; ``checkpoint`` a version, ``"latest"`` or ``"best"``; ``frame`` the (height, width) of the camera frames
+    it takes (DeepRacer's by default; the frame stack comes from the run's hyperparameters). The network is in eval
+    mode, on the CPU.
+    StoreKeyError if the run or checkpoint is missing; CheckpointError if the bytes are not a checkpoint.
+    """
+    if isinstance(run, str):
+        run = runs.read_config(run)
+    payload, meta = runs.load_checkpoint(run.run_id, checkpoint)
+    model = build_policy((*frame, run.hyperparams.stack_size), action_space_spec(actions), run.policy)
+    model.load_state_dict(checkpoint_from_bytes(payload)[0])
+    model.eval()
+    return model, meta
 
 
 def _safe_load(data: bytes) -> Any:

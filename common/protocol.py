@@ -314,3 +314,19 @@ class Heartbeat(_Message):
     """Wall-clock time the worker started acting with ``policy_version``, epoch seconds."""
     max_rss_mb: float = 0.0
     """Peak resident memory of the worker process, MB."""
+
+
+class EvaluationSummary(_Message):
+    """The evaluator's summary of one robust evaluation, appended to a capped list for ``racer train``'s display
+    and the trainer's collapse guard (the whole record, trials included, is in the store)."""
+
+    _reason: ClassVar[str] = "bad_evaluation"
+    version: int = Field(ge=0)
+    env_steps: int | None
+    completion_rate: float = Field(ge=0.0, le=1.0)
+    mean_progress: float
+    best_lap_s: float | None
+    off_track: int = Field(ge=0)
+    score: float
+    best: bool
+    """The evaluation moved the run's ``best`` pointer."""

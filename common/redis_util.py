@@ -9,11 +9,13 @@ import redis
 from redis.backoff import ExponentialBackoff
 from redis.retry import Retry
 
+from common.errors import UserError
+
 SOCKET_TIMEOUT_S = 10.0
 """No Redis call waits longer than this for a reply (blocking reads use shorter block times)."""
 
 
-class RedisUrlError(ValueError):
+class RedisUrlError(UserError, ValueError):
     """A Redis URL that cannot be used."""
 
 

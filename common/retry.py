@@ -15,13 +15,15 @@ from typing import TypeVar
 
 import redis
 
+from common.errors import UserError
+
 T = TypeVar("T")
 
 DEFAULT_GIVE_UP_S = 600.0
 """How long a role process waits through one outage before it exits with an error, seconds."""
 
 
-class OutageError(RuntimeError):
+class OutageError(UserError, RuntimeError):
     """A service stayed unreachable for longer than the process was willing to wait."""
 
 

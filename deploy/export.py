@@ -16,8 +16,7 @@ from pathlib import Path
 import torch
 
 from common.action_space import ActionSpace
-from common.config import RunConfig
-from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
+from common.policy import ActorCritic, load_policy
 from deploy.model_file import OBS_HEIGHT, OBS_WIDTH, stamp
 from model_store import RunStore
 
@@ -36,23 +35,13 @@ class _Exported(torch.nn.Module):
         return params, value
 
 
-def load_policy(runs: RunStore, run_id: str, checkpoint: str | int) -> tuple[ActorCritic, dict, RunConfig, bytes]:
-    """The run's network with the checkpoint's weights (eval mode), its metadata, config and model_metadata.json."""
-    run = RunConfig.model_validate_json(runs.read_file(run_id, "config.json"))
-    metadata = runs.read_file(run_id, "model_metadata.json")
-    actions = ActionSpace.model_validate_json(metadata)
-    payload, meta = runs.load_checkpoint(run_id, checkpoint)
-    model = build_policy((OBS_HEIGHT, OBS_WIDTH, run.hyperparams.stack_size), action_space_spec(actions), run.policy)
-    model_sd, _ = checkpoint_from_bytes(payload)
-    model.load_state_dict(model_sd)
-    model.eval()
-    return model, meta, run, metadata
-
-
 def export_onnx(runs: RunStore, run_id: str, checkpoint: str | int, out: str | Path) -> dict:
     """Write ``out`` (ONNX) and ``model_metadata.json`` beside it; return what was written."""
     out = Path(out)
-    model, meta, run, metadata = load_policy(runs, run_id, checkpoint)
+    run = runs.read_config(run_id)
+    metadata = runs.read_file(run_id, "model_metadata.json")
+    actions = ActionSpace.model_validate_json(metadata)
+    model, meta = load_policy(runs, run, actions, checkpoint)
     discrete = model.action_kind == "discrete"
     outputs = ["action_probs" if discrete else "action_mean", "value"]
     example = torch.zeros((1, OBS_HEIGHT, OBS_WIDTH, run.hyperparams.stack_size), dtype=torch.uint8)

@@ -8,11 +8,14 @@ from pathlib import Path
 
 import onnx
 
-OBS_HEIGHT, OBS_WIDTH = 120, 160
-"""The camera frame the policy was trained on: 160×120 grayscale."""
+from common.config import FRAME_HEIGHT, FRAME_WIDTH
+from common.errors import UserError
+
+OBS_HEIGHT, OBS_WIDTH = FRAME_HEIGHT, FRAME_WIDTH
+"""The camera frame the policy was trained on (``common.config``)."""
 
 
-class ExportError(ValueError):
+class ExportError(UserError, ValueError):
     """A model file or checkpoint that cannot be used; the message names it."""
 
 

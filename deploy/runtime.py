@@ -25,12 +25,13 @@ import numpy as np
 import onnxruntime as ort
 
 from common.action_space import ActionSpace
+from common.errors import UserError
 from common.framestack import FrameStack
 from deploy.model_file import OBS_HEIGHT, OBS_WIDTH, model_info
 from deploy.vehicle import MotorCommand, VehicleCalibration, motor_command
 
 
-class DeployError(ValueError):
+class DeployError(UserError, ValueError):
     """A camera, video, model or frame the runtime cannot use; the message names it."""
 
 

@@ -21,10 +21,11 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from common.action_space import MAX_STEERING_DEG
 from common.car_calibration import CarCalibration
+from common.errors import UserError
 from common.jsonfile import load_json_model
 
 
-class VehicleCalibrationError(ValueError):
+class VehicleCalibrationError(UserError, ValueError):
     """A vehicle calibration file that cannot be used; the message names the file and the field."""
 
 

@@ -8,8 +8,11 @@
                                                    the optimizer's state, kept only where a resume (the newest) or
                                                    the collapse guard's roll-back (the best) needs it
     runs/{run_id}/latest.json, best.json           pointers: {"version": N, ...that checkpoint's metadata}
-    runs/{run_id}/metrics.jsonl                    one JSON row per training iteration (the trainer's)
-    runs/{run_id}/evaluations/{version:09d}.json   one per evaluated checkpoint (the evaluator's)
+    runs/{run_id}/config.json                      the RunConfig (``write_config``/``read_config``)
+    runs/{run_id}/metrics.jsonl                    one JSON row per training iteration (the trainer's;
+                                                   ``read_metrics``)
+    runs/{run_id}/evaluations/{version:09d}.json   one per evaluated checkpoint (the evaluator's;
+                                                   ``read_evaluation``, ``read_evaluations``)
     runs/{run_id}/{name}                           run files: model_metadata.json, reward_function.py, ...
 
 A checkpoint is whole once its .json exists: the .pt is written first, then the .json, then (last) the pointer, so a
@@ -19,18 +22,27 @@ crash at any point leaves every pointer naming a whole checkpoint. Readers ignor
 from __future__ import annotations
 
 import json
+import logging
 import re
 import time
 from typing import Any, Literal
 
+from pydantic import ValidationError
+
+from common.config import RunConfig
+from common.errors import OptionError, first_validation_error
 from common.keys import RUN_ID, check_run_id
 from model_store.store import ObjectStore, StoreError, StoreKeyError, check_key
+
+log = logging.getLogger(__name__)
 
 PointerName = Literal["latest", "best"]
 POINTERS: tuple[str, ...] = ("latest", "best")
 
 _CKPT_NAME = re.compile(r"^(\d{9})\.(pt|json)$")
 _OPTIMIZER_NAME = re.compile(r"^(\d{9})\.optimizer\.pt$")
+CONFIG_FILE = "config.json"
+"""The run file of the run's RunConfig (common/config.py), read by every process of the run."""
 METRICS_FILE = "metrics.jsonl"
 """The run file of training metrics, one JSON object per iteration."""
 EVALUATIONS_DIR = "evaluations"
@@ -46,13 +58,13 @@ def evaluation_name(version: int) -> str:
 def _check_version(version: int) -> int:
     # bool is an int subclass; True as a version is always a bug.
     if isinstance(version, bool) or not isinstance(version, int) or not 0 <= version < 10**9:
-        raise ValueError(f"invalid checkpoint version {version!r}: an int in [0, 999999999]")
+        raise OptionError(f"invalid checkpoint version {version!r}: an int in [0, 999999999]")
     return version
 
 
 def _check_pointer(name: str) -> str:
     if name not in POINTERS:
-        raise ValueError(f"invalid pointer {name!r}: 'latest' or 'best'")
+        raise OptionError(f"invalid pointer {name!r}: 'latest' or 'best'")
     return name
 
 
@@ -343,6 +355,77 @@ class RunStore:
             return self.store.get(self._file_key(run_id, name))
         except StoreKeyError:
             raise self._missing(run_id, f"file {name!r}") from None
+
+    def write_config(self, run: RunConfig) -> None:
+        """Store ``run`` as its run's config.json (indented JSON)."""
+        self.write_file(run.run_id, CONFIG_FILE, run.model_dump_json(indent=2))
+
+    def read_config(self, run_id: str) -> RunConfig:
+        """The run's RunConfig from its config.json.
+
+        StoreKeyError naming the run if it (or its config.json) is missing; StoreError in one line naming the run,
+        the file and the first bad key and value if the file does not validate (``run r1: config.json: env.track:
+        Input should be a valid string (got 5)``).
+        """
+        data = self.read_file(run_id, CONFIG_FILE)
+        try:
+            return RunConfig.model_validate_json(data)
+        except ValidationError as exc:
+            raise StoreError(f"run {run_id}: {CONFIG_FILE}: {first_validation_error(exc)}") from None
+
+    # -- what the trainer and the evaluator recorded -------------------------------------------------------------------
+
+    def read_metrics(self, run_id: str, missing_ok: bool = False) -> list[dict[str, Any]]:
+        """The rows of the run's metrics.jsonl (one per training iteration) in file order.
+
+        A line that is not a JSON object is skipped with a warning. Without the file: StoreKeyError naming the run
+        and file, or with ``missing_ok`` an empty list (a run that has not finished an update yet).
+        """
+        try:
+            text = self.read_file(run_id, METRICS_FILE).decode("utf-8", errors="replace")
+        except StoreKeyError:
+            if missing_ok:
+                return []
+            raise
+        rows = []
+        for number, line in enumerate(text.splitlines(), 1):
+            row = _json_object(line) if line.strip() else None
+            if row is None and line.strip():
+                log.warning("run %r: skipping malformed line %d of %s", run_id, number, METRICS_FILE)
+            elif row is not None:
+                rows.append(row)
+        return rows
+
+    def read_evaluation(self, run_id: str, version: int) -> dict[str, Any]:
+        """The evaluation record of checkpoint ``version``; StoreKeyError if it is missing, StoreError if it is not
+        a JSON object."""
+        name = evaluation_name(version)
+        evaluation = _json_object(self.read_file(run_id, name))
+        if evaluation is None:
+            raise StoreError(f"malformed evaluation {self.store.key_uri(run_prefix(run_id) + name)}")
+        return evaluation
+
+    def read_evaluations(self, run_id: str) -> list[dict[str, Any]]:
+        """Every readable evaluation record of a run in version order, each with its ``version`` (taken from the file
+        name); a malformed one, or one deleted since the listing, is skipped with a warning."""
+        out = []
+        for version in self.evaluation_versions(run_id):
+            try:
+                evaluation = self.read_evaluation(run_id, version)
+            except StoreError as exc:  # includes a file deleted since the listing
+                log.warning("run %r: skipping evaluation %d: %s", run_id, version, exc)
+                continue
+            out.append({**evaluation, "version": version})  # the file name is the truth for the version
+        return out
+
+
+def _json_object(text: str | bytes) -> dict[str, Any] | None:
+    """The JSON object in ``text``, or None if it is not one (json only: nothing from the store is unpickled)."""
+    try:
+        obj = json.loads(text)
+    except (ValueError, UnicodeDecodeError):
+        return None
+    return obj if isinstance(obj, dict) else None
 
 
 def list_models(store: ObjectStore, run_id: str | None = None) -> list[dict[str, Any]]:

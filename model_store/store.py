@@ -20,8 +20,10 @@ import boto3
 import botocore.exceptions as bex
 from botocore.config import Config
 
+from common.errors import UserError
 
-class StoreError(RuntimeError):
+
+class StoreError(UserError, RuntimeError):
     """A store operation failed; the message is one line naming the URI or key (never credentials)."""
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import io
-import json
 import statistics
 import tempfile
 import threading
@@ -12,11 +11,10 @@ import time
 import redis
 from rich.console import Console
 
-from common.keys import Keys
+from common.bus import Bus
 from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
-from racer.plots import metrics_rows
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
 from trainer.process import Trainer, TrainerOptions
@@ -62,7 +60,7 @@ class _Monitor(threading.Thread):
 
     def __init__(self, url: str, run_id: str) -> None:
         super().__init__(daemon=True)
-        self.r, self.keys = redis.Redis.from_url(url), Keys(run_id)
+        self.bus = Bus(redis.Redis.from_url(url), run_id)
         self.published: dict[int, float] = {}
         self.loaded: dict[int, dict[str, float]] = {}
         self.worker_rss: dict[str, float] = {}
@@ -78,19 +76,15 @@ class _Monitor(threading.Thread):
                 continue
 
     def _poll(self) -> None:
-        raw = self.r.get(self.keys.policy)
-        if raw:
-            pv = json.loads(raw)
-            self.published.setdefault(pv["version"], pv["created"])
-        for key in self.r.scan_iter(match=self.keys.heartbeat_pattern):
-            hb = json.loads(self.r.get(key) or "{}")
-            if hb:
-                self.loaded.setdefault(hb["policy_version"], {})[hb["worker_id"]] = hb["policy_loaded_at"]
-                self.worker_rss[hb["worker_id"]] = hb["max_rss_mb"]
-        status = self.r.get(self.keys.trainer_status)
-        if status:
-            self.trainer_rss = max(self.trainer_rss, json.loads(status).get("max_rss_mb", 0.0))
-        self.redis_peak = max(self.redis_peak, int(self.r.info("memory")["used_memory_peak"]))
+        pv = self.bus.policy()
+        if pv is not None:
+            self.published.setdefault(pv.version, pv.created)
+        for hb in self.bus.heartbeats()[0]:
+            self.loaded.setdefault(hb.policy_version, {})[hb.worker_id] = hb.policy_loaded_at
+            self.worker_rss[hb.worker_id] = hb.max_rss_mb
+        status = self.bus.trainer_status() or {}
+        self.trainer_rss = max(self.trainer_rss, status.get("max_rss_mb", 0.0))
+        self.redis_peak = max(self.redis_peak, self.bus.memory()["peak"])
 
     def propagation_s(self, workers: int) -> list[float]:
         """For each version seen by every worker: last worker's switch time minus the publish time."""
@@ -116,7 +110,7 @@ def bench_loop(workers: int, duration_s: float, track: str = "reinvent_base", hy
         wall = time.monotonic() - t0
         monitor.halt.set()
         monitor.join()
-        rows = metrics_rows(run_id, RunStore(LocalStore(store)))
+        rows = RunStore(LocalStore(store)).read_metrics(run_id, missing_ok=True)
     prop = monitor.propagation_s(workers)
     return {
         "workers": workers,

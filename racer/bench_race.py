@@ -31,7 +31,6 @@ from common.car_calibration import load_car
 from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
-from racer.plots import metrics_rows, read_evaluations
 from racer.runconfig import build_run
 from sim.reward import example_path
 
@@ -70,9 +69,12 @@ def _files(folder: Path) -> tuple[Path, Path]:
 def race_curve(run_id: str, runs: RunStore, t0: float) -> list[dict]:
     """Per evaluated checkpoint, in version order: version, time made (s from ``t0``), env steps, completion,
     mean and best lap (s)."""
-    made = {int(r["policy_version"]): (float(r["time"]) - t0, int(r["env_steps"])) for r in metrics_rows(run_id, runs)}
+    made = {
+        int(r["policy_version"]): (float(r["time"]) - t0, int(r["env_steps"]))
+        for r in runs.read_metrics(run_id, missing_ok=True)
+    }
     curve = []
-    for record in read_evaluations(run_id, runs):
+    for record in runs.read_evaluations(run_id):
         version = int(record["version"])
         if version not in made:
             continue
@@ -132,7 +134,7 @@ def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float) -> dict[str
         run_train(run, opts, files, Console(file=io.StringIO()))
         runs = RunStore(LocalStore(Path(tmp, "store")))
         curve = race_curve(run_id, runs, t0)
-        rows = metrics_rows(run_id, runs)
+        rows = runs.read_metrics(run_id, missing_ok=True)
     figures = seed_figures(curve, limit_s)
     figures.update(seed=seed, rollbacks=int(rows[-1].get("rollbacks", 0)) if rows else 0, curve=curve)
     return figures
@@ -191,7 +193,7 @@ def plot_race(result: dict[str, Any], out_png: str | Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from racer.plots import _save
+    from racer.plots import save_figure
 
     fig, (ax_lap, ax_done) = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
     for s in result["seeds"]:
@@ -207,4 +209,4 @@ def plot_race(result: dict[str, Any], out_png: str | Path) -> Path:
     ax_done.set_xlabel("minutes")
     ax_done.set_ylim(-0.05, 1.05)
     ax_lap.set_title(f"racer bench race: {result['track']}, car {result['car']}, {result['minutes']:g} min per seed")
-    return _save(fig, out_png)
+    return save_figure(fig, out_png)

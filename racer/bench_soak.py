@@ -13,7 +13,7 @@ import time
 import redis
 from rich.console import Console
 
-from common.keys import Keys
+from common.bus import Bus
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
 from racer.runconfig import build_run
@@ -27,7 +27,7 @@ class _Sampler(threading.Thread):
 
     def __init__(self, url: str, run_id: str, every_s: float) -> None:
         super().__init__(daemon=True)
-        self.r, self.keys, self.every_s = redis.Redis.from_url(url), Keys(run_id), every_s
+        self.bus, self.every_s = Bus(redis.Redis.from_url(url), run_id), every_s
         self.samples: list[dict] = []
         self.halt = threading.Event()
         self.t0 = time.monotonic()
@@ -40,12 +40,13 @@ class _Sampler(threading.Thread):
                 continue
 
     def _sample(self) -> dict:
-        status = json.loads(self.r.get(self.keys.trainer_status) or "{}")
+        status = self.bus.trainer_status() or {}
+        memory = self.bus.memory()
         return {
             "t_s": round(time.monotonic() - self.t0, 1),
-            "redis_used_mb": int(self.r.info("memory")["used_memory"]) / 2**20,
-            "redis_keys": int(self.r.dbsize()),
-            "stream_len": int(self.r.xlen(self.keys.segments)),
+            "redis_used_mb": memory["used"] / 2**20,
+            "redis_keys": memory["keys"],
+            "stream_len": self.bus.segments_queued(),
             "policy_version": status.get("policy_version"),
             "trainer_peak_rss_mb": status.get("max_rss_mb"),
             "worker_peak_rss_mb": {w["worker_id"]: w["max_rss_mb"] for w in status.get("workers", [])},

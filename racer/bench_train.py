@@ -32,7 +32,6 @@ from common.config import EnvConfig, RunConfig
 from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
-from racer.plots import metrics_rows, read_evaluations
 from racer.runconfig import build_run
 from trainer.evaluator import EvalSettings, evaluate, summarize
 
@@ -114,10 +113,11 @@ def racer_curve(run_id: str, runs: RunStore, t0: float) -> list[dict]:
     """The evaluated policies of a finished ``racer train`` run, in version order, with the time each policy was
     made (its metrics row) relative to ``t0`` (a ``time.time()``)."""
     made = {
-        int(row["policy_version"]): (float(row["time"]), int(row["env_steps"])) for row in metrics_rows(run_id, runs)
+        int(row["policy_version"]): (float(row["time"]), int(row["env_steps"]))
+        for row in runs.read_metrics(run_id, missing_ok=True)
     }
     curve = []
-    for record in read_evaluations(run_id, runs):
+    for record in runs.read_evaluations(run_id):
         version = int(record["version"])
         if version not in made:  # version 0 (the untrained policy) has no metrics row
             continue
@@ -159,7 +159,7 @@ def run_racer(settings: BenchTrainSettings, seed: int) -> LapRun:
         wall = time.time() - t0
         runs = RunStore(LocalStore(store))
         curve = racer_curve(run_id, runs, t0)
-        rows = metrics_rows(run_id, runs)
+        rows = runs.read_metrics(run_id, missing_ok=True)
     batch = int(statistics.median(int(row["batch_steps"]) for row in rows)) if rows else 0
     return _lap_run("racer", seed, curve, wall, batch, [float(row["time"]) - t0 for row in rows])
 

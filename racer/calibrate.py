@@ -8,8 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from common.car_calibration import EFFECTS, CarCalibration, load_car, save_calibration
+from common.errors import OptionError
 from sim.calibration import read_logs
 from sim.calibration.fit import Result, calibrate, score
+from sim.calibration.logs import LogError
 from sim.calibration.replay import TIMINGS
 
 
@@ -28,17 +30,17 @@ def run_calibrate(
     """Fit effects on ``logs`` (or score the car ``apply``, a preset's name or a car.json, on them) and return
     the report. ``base``: a car (preset name or car.json) whose effects the fit keeps and builds on."""
     if timing not in ("auto", *TIMINGS):
-        raise ValueError(f"--timing {timing!r} is not one of auto, {', '.join(TIMINGS)}")
+        raise OptionError(f"--timing {timing!r} is not one of auto, {', '.join(TIMINGS)}")
     for name in effects or []:
         if name not in EFFECTS:
-            raise ValueError(f"--effect {name!r} is not an effect; known: {', '.join(EFFECTS)}")
+            raise OptionError(f"--effect {name!r} is not an effect; known: {', '.join(EFFECTS)}")
     if apply is not None and (out is not None or effects or base is not None):
-        raise ValueError("--apply scores an existing car: it takes no --out, --effect or base car")
+        raise OptionError("--apply scores an existing car: it takes no --out, --effect or base car")
     calibration = load_car(apply) if apply is not None else None
     base_car: CarCalibration | None = load_car(base) if base is not None else None
     trajectories = read_logs(logs, track=track)
     if not trajectories:
-        raise ValueError(f"no usable episode in {', '.join(map(str, logs))}")
+        raise LogError(f"no usable episode in {', '.join(map(str, logs))}")
     say(f"{len(trajectories)} episodes, {sum(len(t) for t in trajectories)} samples")
     if calibration is not None:
         result = score(calibration, trajectories, timing=timing)

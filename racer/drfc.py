@@ -21,13 +21,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from common.errors import UserError
 from sim.track import bundled_track_names
 
 CUSTOM_FILES = ("reward_function.py", "model_metadata.json", "hyperparameters.json")
 _LINE = re.compile(r"^\s*(?:export\s+)?([A-Za-z_][A-Za-z0-9_]*)\s*=\s*(.*?)\s*$")
 
 
-class DrfcError(ValueError):
+class DrfcError(UserError, ValueError):
     """A DRfC folder or variable racer cannot use; the one-line message names the file, the variable, the value."""
 
 

@@ -12,8 +12,10 @@ from pathlib import Path
 
 import redis
 
+from common.errors import UserError
 
-class RedisStartError(RuntimeError):
+
+class RedisStartError(UserError, RuntimeError):
     """No Redis server binary, or it did not come up."""
 
 

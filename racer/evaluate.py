@@ -29,7 +29,7 @@ def run_eval(
 ) -> dict:
     """Evaluate and return the record (summary and trials); optionally write a sim-trace CSV and a video."""
     runs = RunStore(open_store(store, s3_endpoint))
-    run = RunConfig.model_validate_json(runs.read_file(run_id, "config.json"))
+    run = runs.read_config(run_id)
     if car_calibration is not None:  # drive the policy on another car than the one it was trained on
         run = run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(car_calibration)})})
     version: int | str = int(checkpoint) if checkpoint.isdigit() else checkpoint
@@ -49,14 +49,15 @@ def run_eval(
 
 def write_video(runs: RunStore, run: RunConfig, env_cfg, version: int, settings: EvalSettings, path: Path) -> dict:
     """MP4 of the first evaluation trial (forward, from waypoint 0): the camera beside the car on the track."""
+    from common.policy import load_policy
     from sim.env import RacerEnv
     from sim.video import EpisodeVideo
-    from trainer.evaluator import load_model, run_trial
+    from trainer.evaluator import run_trial
 
-    model, _ = load_model(runs, run, env_cfg, version)
     track = (settings.tracks or [env_cfg.track])[0]
     noise = env_cfg.randomization.model_copy(update={"action_noise": settings.action_noise, "random_start": False})
     env = RacerEnv(config=env_cfg.model_copy(update={"track": track, "randomization": noise}))
+    model, _ = load_policy(runs, run, env.actions, version, frame=env.observation_space.shape[:2])
     with EpisodeVideo(path, env.track, env.texture, env.frame) as video:
 
         def on_step(frame, info) -> None:

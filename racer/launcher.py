@@ -3,11 +3,7 @@
 from __future__ import annotations
 
 import contextlib
-import json
-import os
-import signal
 import subprocess
-import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -18,12 +14,13 @@ import redis
 from rich.console import Console
 from rich.live import Live
 
+from common.bus import Bus
 from common.config import RunConfig
-from common.keys import Keys
 from common.redis_util import connect, connect_checked, redact
 from model_store import LocalStore, RunStore, open_store
 from model_store.runs import run_prefix
 from racer.embedded_redis import EmbeddedRedis
+from racer.lifecycle import USER_ERROR_EXIT, RoleFailed, spawn_role, stop_all
 
 
 @dataclass
@@ -60,46 +57,9 @@ class TrainOptions:
     """Restarts allowed per worker slot after a crash or kill (not after a user error, exit code 2)."""
 
 
-USER_ERROR_EXIT = 2
-"""Exit code of a role process that stopped on a user error (bad reward function, bad file): restarting won't help."""
-
-
 def new_run_id() -> str:
     """A readable, sortable run id: ``run-YYYYmmdd-HHMMSS``."""
     return datetime.now(UTC).strftime("run-%Y%m%d-%H%M%S")
-
-
-def _role_env() -> dict[str, str]:
-    env = dict(os.environ)
-    env.setdefault("PYTHONUNBUFFERED", "1")
-    return env
-
-
-def _spawn(args: list[str], log_path: Path) -> subprocess.Popen:
-    log = log_path.open("ab")
-    # start_new_session: Ctrl-C reaches only us; we stop the children in order, trainer last.
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "racer", *args],
-        stdout=log,
-        stderr=subprocess.STDOUT,
-        env=_role_env(),
-        start_new_session=True,
-    )
-    log.close()
-    return proc
-
-
-def _stop_all(procs: list[subprocess.Popen], grace_s: float = 10.0) -> None:
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
-    deadline = time.monotonic() + grace_s
-    for p in procs:
-        try:
-            p.wait(max(0.1, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
 
 
 def _time_bar(elapsed_s: float, limit_s: float | None, width: int = 20) -> str:
@@ -137,7 +97,7 @@ def _status_line(status: dict | None, procs_alive: int, workers: int, evaluation
 def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], console: Console | None = None) -> dict:
     """Start Redis (unless given), the trainer and the workers; show progress; stop them all at the end.
 
-    Returns the trainer's last status. Raises RuntimeError if the trainer process fails.
+    Returns the trainer's last status. Raises RoleFailed if the trainer fails or every worker has stopped.
     """
     console = console or Console()
     _check_store(opts.store, opts.s3_endpoint)
@@ -157,19 +117,21 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
         trainer_args = ["trainer", "--config", str(config_path), "--files", str(work), *common]
         trainer_args += ["--resume"] if opts.resume else []
         trainer_args += ["--threads", str(opts.trainer_threads), "--precision", opts.precision]
-        trainer = _spawn(trainer_args, logs / "trainer.log")
-        workers = [_spawn(_worker_args(run.run_id, k, common), logs / f"worker-{k}.log") for k in range(opts.workers)]
+        trainer = spawn_role(trainer_args, logs / "trainer.log")
+        workers = [
+            spawn_role(_worker_args(run.run_id, k, common), logs / f"worker-{k}.log") for k in range(opts.workers)
+        ]
         evaluator = []
         if opts.evaluate:
             eval_args = ["evaluator", "--run-id", run.run_id, *common, "--every", str(opts.eval_every)]
             eval_args += ["--episodes", str(opts.eval_episodes), "--nice", str(opts.eval_nice)]
             eval_args += [arg for t in opts.eval_tracks for arg in ("--track", t)]
             eval_args += [] if opts.eval_both_directions else ["--forward-only"]
-            evaluator.append(_spawn(eval_args, logs / "evaluator.log"))
+            evaluator.append(spawn_role(eval_args, logs / "evaluator.log"))
         try:
             return _watch(run, opts, redis_url, trainer, _Workers(workers, common, logs, opts.worker_restarts), console)
         finally:
-            _stop_all([*workers, *evaluator, trainer])
+            stop_all([*workers, *evaluator, trainer])
 
 
 def robust_streak(summaries: list[dict]) -> int:
@@ -227,7 +189,7 @@ class _Workers:
             console.print(
                 f"[yellow]{msg}; restarting it ({used + 1} of {self.max_restarts})", highlight=False, soft_wrap=True
             )
-            self.procs[k] = _spawn(_worker_args(run_id, k, self.common), log)
+            self.procs[k] = spawn_role(_worker_args(run_id, k, self.common), log)
 
     @property
     def all_given_up(self) -> bool:
@@ -248,7 +210,7 @@ def _watch(
     workers: _Workers,
     console: Console,
 ) -> dict:
-    r, keys = connect(redis_url), Keys(run.run_id)
+    bus = Bus(connect(redis_url), run.run_id)
     started = time.monotonic()
     deadline = None if opts.time_limit_s is None else started + opts.time_limit_s
     status: dict | None = None
@@ -262,16 +224,17 @@ def _watch(
                 if trainer.poll() is not None:
                     if trainer.returncode == 0:
                         break  # finished by its own termination condition
-                    tail = _last_line(workers.logs / "trainer.log")
-                    raise RuntimeError(f"the trainer exited with code {trainer.returncode}: {tail}")
+                    log = workers.logs / "trainer.log"
+                    raise RoleFailed(
+                        f"the trainer exited with code {trainer.returncode}: {_last_line(log)} (log: {log})"
+                    )
                 workers.check(run.run_id, console)
                 if workers.all_given_up:
                     tail = _last_line(workers.logs / "worker-0.log")
-                    raise RuntimeError(f"every worker has stopped (worker 0: {tail.removeprefix('error: ')})")
+                    raise RoleFailed(f"every worker has stopped (worker 0: {tail.removeprefix('error: ')})")
                 try:
-                    raw = r.get(keys.trainer_status)
-                    status = json.loads(raw) if raw else status
-                    evals = [json.loads(e) for e in r.lrange(keys.evaluations, 0, -1)]
+                    status = bus.trainer_status() or status
+                    evals = [e.model_dump() for e in bus.evaluations()[0]]
                     line = _status_line(status, workers.alive, opts.workers, evals[-1] if evals else None)
                 except redis.RedisError as exc:  # the roles ride out the outage; so does the display
                     line = f"Redis at {redact(redis_url)} unreachable ({type(exc).__name__}); the roles are retrying"
@@ -291,8 +254,6 @@ def _watch(
 def run_summary(run_id: str, runs: RunStore, store: str, s3_endpoint: str | None) -> list[str]:
     """What a finished ``racer train`` tells its user: the best checkpoint with its evaluation, where the run's
     files are, and the commands that come next."""
-    from racer.plots import evaluation_versions, read_evaluation
-
     where = ("" if store == "." else f" --store {store}") + (f" --s3-endpoint {s3_endpoint}" if s3_endpoint else "")
     lines = [f"run files: {runs.store.key_uri(run_prefix(run_id))}"]
     best = runs.pointer(run_id, "best")
@@ -300,8 +261,8 @@ def run_summary(run_id: str, runs: RunStore, store: str, s3_endpoint: str | None
         lines.append("no checkpoint was written: train for longer (--time-limit)")
         return lines
     version = best["version"]
-    if version in evaluation_versions(run_id, runs):
-        e = read_evaluation(run_id, runs, version)
+    if version in runs.evaluation_versions(run_id):
+        e = runs.read_evaluation(run_id, version)
         laps = e.get("lap_times_s") or []
         lap = f", mean lap {sum(laps) / len(laps):.2f} s, best {min(laps):.2f} s" if laps else ""
         lines.append(

@@ -98,12 +98,12 @@ def plot_limit(report: dict[str, Any], out_png: str | Path) -> Path:
     from matplotlib.collections import LineCollection
     from matplotlib.colors import Normalize
 
-    from racer.plots import SPEED_CMAP, _draw_track, _save
+    from racer.plots import SPEED_CMAP, draw_track, save_figure
 
     line: RacingLine = report["_line"]
     driven: DrivenLap = report["_driven"]
     fig, ax = plt.subplots(figsize=(10, 7))
-    _draw_track(ax, report["track"])
+    draw_track(ax, report["track"])
     pts = np.vstack([line.points, line.points[:1]])
     segments = np.stack([pts[:-1], pts[1:]], axis=1)
     norm = Normalize(0.0, max(float(np.max(line.speed)), 0.1))
@@ -120,4 +120,4 @@ def plot_limit(report: dict[str, Any], out_png: str | Path) -> Path:
     )
     ax.set_aspect("equal")
     ax.legend(loc="upper right")
-    return _save(fig, out_png)
+    return save_figure(fig, out_png)

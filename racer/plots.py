@@ -1,10 +1,10 @@
 """Pictures of a run for people: training curves and evaluation trajectories on the track, as PNGs.
 
-Everything is read through the store API (a local directory or S3 alike):
+Everything is read through ``model_store.runs.RunStore`` (a local directory or S3 alike):
 
-- ``runs/{run_id}/metrics.jsonl``: one JSON object per training iteration (written by the trainer);
-- ``runs/{run_id}/evaluations/{version:09d}.json``: one per evaluated checkpoint (written by the evaluator), with
-  its trials' trajectories as ``[[x, y, speed_mps], ...]``.
+- ``read_metrics``: ``runs/{run_id}/metrics.jsonl``, one JSON object per training iteration (written by the trainer);
+- ``read_evaluation(s)``: ``runs/{run_id}/evaluations/{version:09d}.json``, one per evaluated checkpoint (written by
+  the evaluator), with its trials' trajectories as ``[[x, y, speed_mps], ...]``.
 
 Figures are drawn on matplotlib's Agg canvas directly (``Figure`` + ``FigureCanvasAgg``), never through pyplot:
 no display is needed, and importing this module does not switch the backend of a process that has its own.
@@ -12,7 +12,6 @@ no display is needed, and importing this module does not switch the backend of a
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Any, Literal
@@ -24,8 +23,9 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from model_store.runs import METRICS_FILE, RunStore, evaluation_name, run_prefix
-from model_store.store import StoreError, StoreKeyError
+from common.errors import UserError
+from model_store.runs import METRICS_FILE, RunStore
+from model_store.store import StoreKeyError
 from sim.texture import TextureFrame, draw_surface
 from sim.track import load_track
 
@@ -49,75 +49,22 @@ Version = int | Literal["best", "latest"] | str | None
 # -- reading -----------------------------------------------------------------------------------------------------------
 
 
-def read_metrics(run_id: str, runs: RunStore) -> list[dict[str, Any]]:
-    """The rows of a run's metrics.jsonl in file order; ValueError naming the run if it has none.
-
-    A line that is not a JSON object is skipped with a warning rather than failing the whole picture.
-    """
+def _training_rows(run_id: str, runs: RunStore) -> list[dict[str, Any]]:
+    """``RunStore.read_metrics``, as a ValueError naming the run if it has no (or an empty) metrics.jsonl."""
     try:
-        text = runs.read_file(run_id, METRICS_FILE).decode("utf-8", errors="replace")
+        rows = runs.read_metrics(run_id)
     except StoreKeyError as exc:
-        raise ValueError(f"cannot plot training of run {run_id!r}: {exc}") from None
-    rows = []
-    for number, line in enumerate(text.splitlines(), 1):
-        row = _json_object(line) if line.strip() else None
-        if row is None and line.strip():
-            log.warning("run %r: skipping malformed line %d of %s", run_id, number, METRICS_FILE)
-        elif row is not None:
-            rows.append(row)
+        raise UserError(f"cannot plot training of run {run_id!r}: {exc}") from None
     if not rows:
-        raise ValueError(f"cannot plot training of run {run_id!r}: its {METRICS_FILE} has no rows")
+        raise UserError(f"cannot plot training of run {run_id!r}: its {METRICS_FILE} has no rows")
     return rows
-
-
-def _json_object(text: str | bytes) -> dict[str, Any] | None:
-    try:
-        obj = json.loads(text)
-    except (ValueError, UnicodeDecodeError):
-        return None
-    return obj if isinstance(obj, dict) else None
-
-
-def metrics_rows(run_id: str, runs: RunStore) -> list[dict[str, Any]]:
-    """The rows of a run's metrics.jsonl, or none when it never finished an update (the benchmarks' reader)."""
-    try:
-        return read_metrics(run_id, runs)
-    except ValueError:
-        return []
-
-
-def evaluation_versions(run_id: str, runs: RunStore) -> list[int]:
-    """Checkpoint versions that have an evaluation file, ascending."""
-    return runs.evaluation_versions(run_id)
-
-
-def read_evaluation(run_id: str, runs: RunStore, version: int) -> dict[str, Any]:
-    """The evaluation of checkpoint ``version``; StoreError if it is missing or not a JSON object."""
-    name = evaluation_name(version)
-    evaluation = _json_object(runs.read_file(run_id, name))
-    if evaluation is None:
-        raise StoreError(f"malformed evaluation {runs.store.key_uri(run_prefix(run_id) + name)}")
-    return evaluation
-
-
-def read_evaluations(run_id: str, runs: RunStore) -> list[dict[str, Any]]:
-    """Every readable evaluation of a run in version order; malformed ones are skipped with a warning."""
-    out = []
-    for version in evaluation_versions(run_id, runs):
-        try:
-            evaluation = read_evaluation(run_id, runs, version)
-        except StoreError as exc:  # includes a file deleted since the listing
-            log.warning("run %r: skipping evaluation %d: %s", run_id, version, exc)
-            continue
-        out.append({**evaluation, "version": version})  # the file name is the truth for the version
-    return out
 
 
 def _pick_evaluation(run_id: str, runs: RunStore, version: Version) -> int:
     """The evaluated version to draw: newest (None), a number, or the checkpoint a pointer names."""
-    available = evaluation_versions(run_id, runs)
+    available = runs.evaluation_versions(run_id)
     if not available:
-        raise ValueError(f"run {run_id!r} has no evaluations in {runs.store.uri}")
+        raise UserError(f"run {run_id!r} has no evaluations in {runs.store.uri}")
     if version is None:
         return available[-1]
     if isinstance(version, str) and not version.isdecimal():
@@ -125,7 +72,7 @@ def _pick_evaluation(run_id: str, runs: RunStore, version: Version) -> int:
     else:
         wanted = runs.resolve(run_id, version)
     if wanted not in available:
-        raise ValueError(f"run {run_id!r} has no evaluation of checkpoint {wanted} (evaluated: {_short(available)})")
+        raise UserError(f"run {run_id!r} has no evaluation of checkpoint {wanted} (evaluated: {_short(available)})")
     return wanted
 
 
@@ -137,7 +84,7 @@ def _pointer_version(run_id: str, runs: RunStore, name: str, available: list[int
         pass
     if name == "latest":
         return available[-1]
-    scored = [(float(e.get("score") or 0.0), e["version"]) for e in read_evaluations(run_id, runs)]
+    scored = [(float(e.get("score") or 0.0), e["version"]) for e in runs.read_evaluations(run_id)]
     return max(scored)[1] if scored else available[-1]
 
 
@@ -233,8 +180,8 @@ def plot_training(run_id: str, runs: RunStore, out_png: str | Path) -> Path:
     Evaluation completion rates (%) are red diamonds at the iteration of each evaluated checkpoint; env steps read
     on a secondary axis at the top. ValueError naming the run if it has no (or an empty) metrics.jsonl.
     """
-    rows = read_metrics(run_id, runs)
-    evaluations = read_evaluations(run_id, runs)
+    rows = _training_rows(run_id, runs)
+    evaluations = runs.read_evaluations(run_id)
     it = _column(rows, "iteration")
     it = np.where(np.isnan(it), np.arange(1, len(rows) + 1), it)  # rows without an iteration: count them
     fig = Figure(figsize=TRAINING_FIGSIZE, dpi=DPI, layout="constrained")
@@ -245,10 +192,11 @@ def plot_training(run_id: str, runs: RunStore, out_png: str | Path) -> Path:
     steps = _column(rows, "env_steps")
     last = f"{int(steps[-1]):,} env steps" if not np.isnan(steps[-1]) else f"{len(rows)} iterations"
     fig.suptitle(f"run {run_id}: training ({len(rows)} iterations, {last}, {len(evaluations)} evaluations)")
-    return _save(fig, out_png)
+    return save_figure(fig, out_png)
 
 
-def _save(fig: Figure, out_png: str | Path) -> Path:
+def save_figure(fig: Figure, out_png: str | Path) -> Path:
+    """Write ``fig`` as a PNG at ``out_png`` (creating its folder) with the Agg canvas; return the path."""
     path = Path(out_png)
     path.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig).print_png(str(path))
@@ -258,7 +206,7 @@ def _save(fig: Figure, out_png: str | Path) -> Path:
 # -- trajectories ------------------------------------------------------------------------------------------------------
 
 
-def _draw_track(ax: Any, track_name: str) -> None:
+def draw_track(ax: Any, track_name: str) -> None:
     """The track as the simulator draws it, placed in metres so trajectories plot in track coordinates."""
     track = load_track(track_name)
     frame = TextureFrame.for_track(track, ppm=BACKGROUND_PPM)
@@ -352,7 +300,7 @@ def plot_trajectories(run_id: str, runs: RunStore, out_png: str | Path, version:
     green star, off-track ends in a red cross. ValueError naming the run if there is no such evaluation.
     """
     number = _pick_evaluation(run_id, runs, version)
-    evaluation = {**read_evaluation(run_id, runs, number), "version": number}
+    evaluation = {**runs.read_evaluation(run_id, number), "version": number}
     track_name = str(evaluation.get("track") or "")
     all_trials = [t for t in evaluation.get("trials") or [] if isinstance(t, dict)]
     # An evaluation could span tracks; only the trials on the drawn track belong on this picture.
@@ -360,7 +308,7 @@ def plot_trajectories(run_id: str, runs: RunStore, out_png: str | Path, version:
     paths = [_trajectory(t) for t in trials]
     fig = Figure(figsize=TRAJECTORY_FIGSIZE, dpi=DPI, layout="constrained")
     ax = fig.add_subplot()
-    _draw_track(ax, track_name)
+    draw_track(ax, track_name)
     speeds = np.concatenate([p[:, 2] for p in paths]) if paths else np.zeros(0)
     speeds = speeds[np.isfinite(speeds)]
     norm = Normalize(0.0, max(float(speeds.max()) if speeds.size else 0.0, 0.5))  # 0.5: a range even for no data
@@ -372,7 +320,7 @@ def plot_trajectories(run_id: str, runs: RunStore, out_png: str | Path, version:
     ax.set_ylabel("y (m)")
     _legend(fig)
     ax.set_title(_trajectory_title(run_id, evaluation, len(trials), len(all_trials) - len(trials)))
-    return _save(fig, out_png)
+    return save_figure(fig, out_png)
 
 
 # -- both --------------------------------------------------------------------------------------------------------------
@@ -385,7 +333,7 @@ def plot_run(run_id: str, runs: RunStore, out_dir: str | Path) -> list[Path]:
     """
     out = Path(out_dir)
     written = [plot_training(run_id, runs, out / "training.png")]
-    if evaluation_versions(run_id, runs):
+    if runs.evaluation_versions(run_id):
         written.append(plot_trajectories(run_id, runs, out / "trajectories.png"))
     else:
         log.warning("run %r has no evaluations yet: skipped trajectories.png", run_id)

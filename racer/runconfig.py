@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import logging
 import re
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from common.action_space import ActionSpace, default_action_space, load_action_space
@@ -15,6 +17,7 @@ from common.config import (
     RunConfig,
     network_from_metadata,
 )
+from common.errors import OptionError, UserError
 from common.hyperparams import Hyperparameters, load_hyperparameters
 from common.jsonfile import load_json_model
 from model_store import RunStore, StoreError
@@ -26,10 +29,10 @@ _DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([smh]?)\s*$")
 
 
 def parse_duration(text: str) -> float:
-    """Seconds in ``90s``, ``5m``, ``1.5h`` or a bare number of seconds; ValueError naming the text otherwise."""
+    """Seconds in ``90s``, ``5m``, ``1.5h`` or a bare number of seconds; OptionError naming the text otherwise."""
     m = _DURATION.match(text)
     if not m:
-        raise ValueError(f"duration {text!r} is not valid: use a number with s, m or h (90s, 5m, 2h)")
+        raise OptionError(f"duration {text!r} is not valid: use a number with s, m or h (90s, 5m, 2h)")
     return float(m.group(1)) * {"": 1, "s": 1, "m": 60, "h": 3600}[m.group(2)]
 
 
@@ -76,7 +79,7 @@ def build_run(
     return run, files
 
 
-class RandomizationFileError(ValueError):
+class RandomizationFileError(UserError, ValueError):
     """A domain-randomization settings file that cannot be used; the message names the file."""
 
 
@@ -96,7 +99,7 @@ def check_pretrained(runs: RunStore, run: RunConfig, files: dict[str, bytes], re
     try:
         version = runs.resolve(source, which)
         runs.checkpoint_meta(source, version)
-        theirs = RunConfig.model_validate_json(runs.read_file(source, "config.json"))
+        theirs = runs.read_config(source)
         their_actions = ActionSpace.model_validate_json(runs.read_file(source, "model_metadata.json"))
     except (StoreError, ValueError) as exc:
         raise PretrainedError(f"pretrained {ref!r}: {str(exc).splitlines()[0]}") from None
@@ -114,3 +117,84 @@ def check_pretrained(runs: RunStore, run: RunConfig, files: dict[str, bytes], re
             f"pretrained {ref!r}: its network {theirs.policy.model_dump()} differs from this run's {mine}"
         )
     return run.model_copy(update={"pretrained": f"{source}:{version}"})
+
+
+@dataclass
+class NewRun:
+    """What defines a new run: ``racer train``'s (or ``racer trainer``'s) options, merged with a DRfC folder."""
+
+    track: str = "reinvent_base"
+    reward_fn: str | None = None
+    action_space: str | None = None
+    hyperparams: str | None = None
+    randomization: str | None = None
+    """A randomization JSON file."""
+    randomization_update: dict = field(default_factory=dict)
+    """RandomizationConfig fields set on top (from a DRfC run.env)."""
+    worker_tracks: list[str] = field(default_factory=list)
+    seed: int = 0
+    car: str | None = None
+    """A car preset's name or a car.json (None: the default car)."""
+    max_policy_lag: int = 0
+    segment_steps: int = 32
+    pretrained: str | None = None
+    """``RUN[:best|latest|N]`` of another run in the store to start from."""
+
+
+def open_run(runs: RunStore, run_id: str, new: NewRun | None) -> tuple[RunConfig, dict[str, bytes], list[str]]:
+    """The run to train: with ``new`` None (a resume) the stored one; else a new run built from the user's files,
+    checked now, and refused if ``run_id`` already has checkpoints. Returns its config, its files (none on a
+    resume) and one note per thing in the files that racer accepts but does not use."""
+    if new is None:
+        return runs.read_config(run_id), {}, []
+    if runs.newest_whole(run_id) is not None:
+        raise OptionError(
+            f"run {run_id!r} already exists in {runs.store.uri}: add --resume to continue it, "
+            "or choose another --run-id"
+        )
+    notes: list[str] = []
+    run, files = build_run(
+        run_id,
+        new.track,
+        new.reward_fn,
+        new.action_space,
+        new.hyperparams,
+        new.randomization,
+        new.worker_tracks,
+        new.seed,
+        new.car,
+        notes=notes,
+        randomization_update=new.randomization_update,
+    )
+    run = run.model_copy(update={"max_policy_lag": new.max_policy_lag, "segment_steps": new.segment_steps})
+    if new.pretrained:
+        run = check_pretrained(runs, run, files, new.pretrained)
+    return run, files, notes
+
+
+def trainer_role_run(
+    runs: RunStore, run_id: str | None, config: Path | None, files: Path | None, resume: bool, new: NewRun
+) -> tuple[RunConfig, dict[str, bytes], bool]:
+    """The run ``racer trainer`` trains, its files and whether it resumes: from ``config`` (and the ``files``
+    folder) written by ``racer train``; on ``resume`` the stored run; else a new run from ``new``. A run that
+    already has checkpoints is always resumed: a restarted trainer (compose's restart: on-failure, a crashed
+    host) continues its run, never restarts it."""
+    run_files: dict[str, bytes] = {}
+    if config:
+        run = load_json_model(config, "run config", RunConfig, OptionError)
+        if files:
+            run_files = {p.name: p.read_bytes() for p in files.iterdir() if p.is_file() and p.name != config.name}
+    elif resume:
+        if not run_id:
+            raise OptionError("--resume needs --run-id")
+        run = runs.read_config(run_id)
+    elif not run_id:
+        raise OptionError("give --run-id (or RACER_RUN_ID) or --config")
+    else:
+        run, run_files = build_run(run_id, new.track, new.reward_fn, new.action_space, new.hyperparams)
+    if not resume and runs.newest_whole(run.run_id) is not None:
+        logging.getLogger("racer.trainer").warning(
+            "run %s already has checkpoints in %s: continuing it (as --resume)", run.run_id, runs.store.uri
+        )
+        return runs.read_config(run.run_id), {}, True
+    return run, run_files, resume

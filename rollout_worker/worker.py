@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from common.bus import Bus
 from common.config import EnvConfig, RunConfig
 from common.framestack import FrameStack
-from common.keys import Keys
 from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
 from common.redis_util import connect_checked, redact
@@ -77,14 +77,13 @@ class RolloutWorker:
     def __init__(self, opts: WorkerOptions, stop: threading.Event | None = None) -> None:
         self.opts = opts
         self.stop = stop or threading.Event()
-        self.keys = Keys(opts.run_id)
         self.redis = connect_checked(opts.redis_url)
+        self.bus = Bus(self.redis, opts.run_id)
         self.runs = RunStore(open_store(opts.store, opts.s3_endpoint))
         self.redis_outage = Outage(f"Redis at {redact(opts.redis_url)}", redis_transient, log, self.stop, opts.outage_s)
         self.store_outage = Outage(f"store {self.runs.store.uri}", is_transient, log, self.stop, opts.outage_s)
         if opts.worker_index is None:
-            slot = self.redis_outage.call("take a worker index", lambda: self.redis.incr(self.keys.worker_slots))
-            opts.worker_index = int(slot) - 1
+            opts.worker_index = self.redis_outage.call("take a worker index", self.bus.take_worker_slot)
         self.worker_id = opts.worker_id or f"{socket.gethostname()}-{os.getpid()}-{opts.worker_index}"
         self.policy_version = -1
         self.env_steps = 0
@@ -97,8 +96,7 @@ class RolloutWorker:
     def start(self) -> None:
         """Wait for the first policy, then build the env and the network from the run's files."""
         first = self._wait_for_policy()
-        config = self.store_outage.call("read the run", lambda: self.runs.read_file(self.opts.run_id, "config.json"))
-        self.run = RunConfig.model_validate_json(config)
+        self.run: RunConfig = self.store_outage.call("read the run", partial(self.runs.read_config, self.opts.run_id))
         self.env = RacerEnv(config=self.store_outage.call("read the run's files", self._env_config))
         self.stack = FrameStack(self.run.hyperparams.stack_size)
         obs_shape = (*self.env.observation_space.shape[:2], self.run.hyperparams.stack_size)
@@ -120,9 +118,9 @@ class RolloutWorker:
     def _wait_for_policy(self) -> PolicyVersion:
         deadline = time.monotonic() + self.opts.policy_wait_s
         while not self.stop.is_set():
-            raw = self.redis_outage.call("wait for the first policy", lambda: self.redis.get(self.keys.policy))
-            if raw is not None:
-                return PolicyVersion.from_json(raw)
+            pv = self.redis_outage.call("wait for the first policy", self.bus.policy)
+            if pv is not None:
+                return pv
             if time.monotonic() > deadline:
                 raise TimeoutError(
                     f"no policy published for run {self.opts.run_id!r} after {self.opts.policy_wait_s} s"
@@ -158,7 +156,7 @@ class RolloutWorker:
             return
         deadline = time.monotonic() + timeout_s
         next_beat = time.monotonic() + 1.0
-        while not self.stop.is_set() and time.monotonic() < deadline and self.redis.exists(self.keys.training):
+        while not self.stop.is_set() and time.monotonic() < deadline and self.bus.training():
             if self.poll_policy():
                 return
             if time.monotonic() > next_beat:  # a long PPO update must not make the trainer think we died
@@ -237,15 +235,12 @@ class RolloutWorker:
 
     def push(self, seg: Segment) -> None:
         """Send a segment (one atomic XADD, capped stream) and refresh the heartbeat."""
-        pipe = self.redis.pipeline(transaction=False)
-        pipe.xadd(self.keys.segments, encode_segment(seg), maxlen=self.run.stream_maxlen, approximate=True)
-        pipe.set(self.keys.heartbeat(self.worker_id), self._heartbeat(1).to_json(), ex=self._heartbeat_ex())
-        pipe.execute()
+        self.bus.push_segment(encode_segment(seg), self._heartbeat(1), self.run.stream_maxlen, self._heartbeat_ex())
         self.segments += 1
 
     def beat(self) -> None:
         """Refresh the heartbeat without sending a segment (while waiting for the trainer)."""
-        self.redis.set(self.keys.heartbeat(self.worker_id), self._heartbeat().to_json(), ex=self._heartbeat_ex())
+        self.bus.beat(self._heartbeat(), self._heartbeat_ex())
 
     def _heartbeat_ex(self) -> int:
         return int(self.run.heartbeat_ttl_s) + 1
@@ -267,15 +262,12 @@ class RolloutWorker:
     def poll_policy(self) -> bool:
         """Switch to a newer policy if one was published. Called between segments (every ~50 ms of work):
         one GET of the version key is cheaper than keeping a pub/sub connection and just as prompt."""
-        raw = self.redis.get(self.keys.policy)
-        if raw is None:
-            return False
         try:
-            pv = PolicyVersion.from_json(raw)
+            pv = self.bus.policy()
         except ProtocolError as exc:
             log.warning("ignoring malformed policy version: %s", exc)
             return False
-        if pv.version <= self.policy_version:
+        if pv is None or pv.version <= self.policy_version:
             return False
         self._load(pv)
         return True

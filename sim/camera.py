@@ -18,6 +18,8 @@ import cv2
 import mujoco
 import numpy as np
 
+from common.config import FRAME_HEIGHT, FRAME_WIDTH
+from common.errors import UserError
 from sim._gl import ensure_gl_backend
 from sim.physics import Pose
 from sim.texture import TextureFrame
@@ -32,8 +34,8 @@ MAX_RANGE_M = 40.0
 class CameraSpec:
     """Camera pose on the car and its image geometry (pinhole, square pixels)."""
 
-    width: int = 160
-    height: int = 120
+    width: int = FRAME_WIDTH
+    height: int = FRAME_HEIGHT
     hfov_deg: float = 120.0
     """Horizontal field of view, degrees (wide, as on DeepRacer)."""
     forward_m: float = 0.09
@@ -259,7 +261,7 @@ class GroundCamera:
         return out
 
 
-class RenderError(RuntimeError):
+class RenderError(UserError, RuntimeError):
     """MuJoCo's renderer could not start (no OpenGL backend)."""
 
 

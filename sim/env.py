@@ -24,7 +24,7 @@ from common.action_space import (
     default_action_space,
     load_action_space,
 )
-from common.config import EnvConfig
+from common.config import FRAME_HEIGHT, FRAME_WIDTH, EnvConfig
 from sim.augment import augment_frame, needs_color
 from sim.camera import CameraSpec, GroundCamera, MujocoCamera
 from sim.physics import CarPhysics
@@ -44,7 +44,7 @@ from sim.track import Track, load_track
 from sim.views import top_down
 from sim.world import CONTROL_HZ, build_model
 
-OBS_SHAPE = (120, 160, 1)
+OBS_SHAPE = (FRAME_HEIGHT, FRAME_WIDTH, 1)
 
 
 class RacerEnv(gym.Env):

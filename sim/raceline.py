@@ -24,7 +24,7 @@ from scipy.optimize import minimize
 
 from sim.car_limits import CarLimits
 from sim.physics import TRACK_WIDTH_M
-from sim.track import Track
+from sim.track import Track, TrackError
 
 SPACING_M = 0.1
 """Distance between the line's points along the centre line, m."""
@@ -84,7 +84,7 @@ class RacingLine:
 def corridor(track: Track, margin: float = DEFAULT_MARGIN_M) -> Corridor:
     """The resampled centre line of a closed track and the offsets that keep a wheel on the track."""
     if not track.closed:
-        raise ValueError(f"track {track.name!r} is not a loop: a lap-time limit needs a closed track")
+        raise TrackError(f"track {track.name!r} is not a loop: a lap-time limit needs a closed track")
     s_rows = track.cumulative
     length = float(s_rows[-1])
     n = max(int(round(length / SPACING_M)), 20)

@@ -24,6 +24,8 @@ from pathlib import Path
 from types import FrameType, TracebackType
 from typing import Any
 
+from common.errors import UserError
+
 PARAM_KEYS: tuple[str, ...] = (
     "all_wheels_on_track",
     "x",
@@ -62,7 +64,7 @@ _MAX_DETAIL_CHARS = 300
 _module_ids = itertools.count()
 
 
-class RewardFunctionError(ValueError):
+class RewardFunctionError(UserError, ValueError):
     """A reward function that cannot be used; the one-line message names the file and what is wrong."""
 
 

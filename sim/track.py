@@ -17,12 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
+from common.errors import UserError
+
 MIN_WAYPOINTS = 5
 _CLOSE_TOL_M = 1e-3
 log = logging.getLogger("racer.track")
 
 
-class TrackError(ValueError):
+class TrackError(UserError, ValueError):
     """A track file that cannot be used; the message names the file and what is wrong."""
 
 

@@ -129,6 +129,6 @@ def test_racer_train_will_not_start_over_an_existing_run(workdir):
     runs.save_checkpoint("taken", 0, b"weights", {"env_steps": 5})
     before = sorted(p.relative_to(workdir) for p in (workdir / "runs").rglob("*"))
     out = racer(["train", "--run-id", "taken", "--time-limit", "60s"], workdir)
-    assert_one_line_error(out, "run 'taken' already exists in .: add --resume to continue it")
+    assert_one_line_error(out, f"run 'taken' already exists in {workdir}: add --resume to continue it")
     assert sorted(p.relative_to(workdir) for p in (workdir / "runs").rglob("*")) == before
     assert runs.load_checkpoint("taken", "latest")[0] == b"weights"

@@ -11,7 +11,8 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from model_store import LocalStore, RunStore
-from racer.cli import _models_tables, app
+from racer.cli import app
+from racer.commands.models import models_tables as _models_tables
 from racer.launcher import _duration, _time_bar, run_summary
 
 

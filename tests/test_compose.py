@@ -36,7 +36,7 @@ def test_worker_count_comes_from_workers_variable():
 
 def test_role_commands_exist_and_take_every_variable_compose_sets():
     services = compose()["services"]
-    for role in ("trainer", "worker"):
+    for role in ("trainer", "worker", "evaluator"):
         svc = services[role]
         assert svc["command"] == [role]
         names = set(svc["environment"]) - {"AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_DEFAULT_REGION"}
@@ -54,3 +54,11 @@ def test_dockerfile_pins_cpu_torch_and_uses_the_racer_entrypoint():
     text = (ROOT / "Dockerfile").read_text()
     assert "torch==2.13.0" in text and "download.pytorch.org/whl/cpu" in text
     assert 'ENTRYPOINT ["racer"]' in text
+
+
+def test_the_trainer_healthcheck_is_racer_status_with_its_options_from_the_environment():
+    trainer = compose()["services"]["trainer"]
+    assert trainer["healthcheck"]["test"] == ["CMD", "racer", "status", "--quiet"]
+    group = typer.main.get_command(app)
+    required = {p.envvar for p in group.commands["status"].params if p.required}
+    assert required == {"RACER_REDIS_URL", "RACER_RUN_ID"} and required <= set(trainer["environment"])

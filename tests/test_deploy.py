@@ -19,8 +19,8 @@ from common.action_space import ActionSpace
 from common.car_calibration import CarCalibration
 from common.config import EnvConfig
 from common.framestack import FrameStack
-from common.policy import action_space_spec, build_policy, checkpoint_to_bytes
-from deploy.export import export_onnx, load_policy
+from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_to_bytes, load_policy
+from deploy.export import export_onnx
 from deploy.model_file import ExportError, model_info
 from deploy.runtime import Policy, preprocess
 from deploy.vehicle import (
@@ -62,6 +62,12 @@ def make_run(tmp: Path, run_id: str, action_space: dict | None = None, stack_siz
     return runs
 
 
+def stored_policy(runs: RunStore, run_id: str) -> ActorCritic:
+    """The run's latest checkpoint's network, as ``racer export`` loads it."""
+    actions = ActionSpace.model_validate_json(runs.read_file(run_id, "model_metadata.json"))
+    return load_policy(runs, run_id, actions, "latest", frame=(120, 160))[0]
+
+
 def sim_frames(n: int, seed: int = 0) -> list[np.ndarray]:
     """Camera frames (120, 160, 1) from our simulator, driving straight-ish from a few starts."""
     env = RacerEnv(config=EnvConfig(track="reinvent_base"))
@@ -82,7 +88,7 @@ def test_onnx_export_matches_torch(tmp_path, space, stack):
     result = export_onnx(runs, "exp", "latest", tmp_path / "out" / "model.onnx")
     assert (tmp_path / "out" / "model_metadata.json").read_bytes() == runs.read_file("exp", "model_metadata.json")
     assert model_info(result["model"])["stack_size"] == stack and result["version"] == 0
-    model, *_ = load_policy(runs, "exp", "latest")
+    model = stored_policy(runs, "exp")
     frames = sim_frames(12)
     obs = np.stack([np.concatenate(frames[i : i + stack], axis=-1) for i in range(10)])  # (10, 120, 160, stack)
     session = ort.InferenceSession(result["model"], providers=["CPUExecutionProvider"])
@@ -160,7 +166,7 @@ def test_vehicle_calibration_maps_actions_to_hand_computed_outputs(tmp_path):
 
 def record_sim_video(runs: RunStore, path: Path, steps: int) -> list[int]:
     """Drive our simulator greedily with the torch policy, record its camera losslessly (FFV1), return the actions."""
-    model, *_ = load_policy(runs, "car", "latest")
+    model = stored_policy(runs, "car")
     env = RacerEnv(config=EnvConfig(track="reinvent_base"))
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 15, (160, 120), isColor=False)
     assert writer.isOpened(), "OpenCV's FFV1 (lossless) encoder should be available"

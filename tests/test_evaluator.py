@@ -209,3 +209,70 @@ def test_lockstep_evaluation_drives_each_trial_as_run_trial_does():
     assert len({t.steps for t in batched}) > 1, "trials of different lengths should run side by side"
     assert batched == single  # status, progress, lap time and every point of every path
     assert batched_trace.take(include_open=True) == single_trace.take(include_open=True)
+
+
+def test_the_evaluator_rides_out_a_short_redis_outage_and_ends_on_a_longer_one(tmp_path, caplog):
+    """As the worker and trainer do: a Redis restart shorter than ``outage_s`` pauses the evaluator (it then evaluates
+    the version published after it), an outage longer than ``outage_s`` ends it with OutageError."""
+    import logging
+    import threading
+    import time
+
+    import redis
+    import torch
+
+    from common.action_space import ActionSpace
+    from common.keys import Keys
+    from common.policy import action_space_spec, build_policy, checkpoint_to_bytes
+    from common.protocol import PolicyVersion
+    from common.retry import OutageError
+    from model_store.runs import checkpoint_key
+    from racer.embedded_redis import EmbeddedRedis, free_port
+    from tests.faults import wait_for
+    from trainer.evaluator import EvaluatorOptions, run_evaluator
+
+    run, files = build_run("ev-outage", track="Straight_track")
+    runs = RunStore(LocalStore(tmp_path))
+    for name, data in files.items():
+        runs.write_file(run.run_id, name, data)
+    runs.write_config(run)
+    actions = ActionSpace.model_validate_json(files["model_metadata.json"])
+    model = build_policy((120, 160, 1), action_space_spec(actions), run.policy)
+    runs.save_checkpoint(run.run_id, 1, checkpoint_to_bytes(model.state_dict()), {"env_steps": 100})
+    port, keys, threads = free_port(), Keys(run.run_id), torch.get_num_threads()
+    server = EmbeddedRedis(port=port)
+    settings = EvalSettings(episodes=1, both_directions=False)
+    opts = EvaluatorOptions(run.run_id, server.url, str(tmp_path), settings=settings, outage_s=4.0)
+    stop, errors = threading.Event(), []
+
+    def evaluator() -> None:
+        try:
+            run_evaluator(opts, stop)
+        except Exception as exc:
+            errors.append(exc)
+
+    caplog.set_level(logging.WARNING, "racer.evaluator")
+    thread = threading.Thread(target=evaluator, daemon=True)
+    thread.start()
+    try:
+        time.sleep(1.0)  # polling for a policy version
+        server.stop()
+        wait_for(lambda: "unreachable while trying to read the policy version" in caplog.text, 10, "the outage")
+        time.sleep(1.0)
+        server = EmbeddedRedis(port=port)  # no persistence: it comes back empty
+        pv = PolicyVersion(version=1, checkpoint_key=checkpoint_key(run.run_id, 1), created=time.time())
+        r = redis.Redis.from_url(server.url)
+        r.set(keys.policy, pv.to_json())
+        wait_for(lambda: r.llen(keys.evaluations) or errors, 60, "the evaluation after the outage")
+        assert not errors and "reachable again after" in caplog.text
+        assert json.loads(r.lindex(keys.evaluations, 0))["version"] == 1 and runs.evaluation_versions("ev-outage")
+        server.stop()  # now for good
+        t0 = time.monotonic()
+        thread.join(30)
+        assert not thread.is_alive() and len(errors) == 1 and isinstance(errors[0], OutageError), errors
+        assert "unreachable for" in str(errors[0]) and 4.0 <= time.monotonic() - t0 < 20
+    finally:
+        stop.set()
+        thread.join(10)
+        server.stop()
+        torch.set_num_threads(threads)  # run_evaluator sets this process's torch to one thread

@@ -347,6 +347,53 @@ def test_run_files_round_trip(store):
         runs.write_file("run1", "latest.json", "{}")  # would clobber a pointer
 
 
+def test_run_config_round_trip_and_a_bad_one_is_one_line_naming_run_file_key_and_value(store):
+    from common.config import EnvConfig, RunConfig
+
+    runs = RunStore(store)
+    with pytest.raises(StoreKeyError, match="run 'r1' does not exist"):
+        runs.read_config("r1")
+    run = RunConfig(run_id="r1", env=EnvConfig(track="Straight_track"), seed=7)
+    runs.write_config(run)
+    assert runs.read_config("r1") == run
+    assert json.loads(runs.read_file("r1", "config.json"))["seed"] == 7  # the file every process reads
+    bad = json.loads(runs.read_file("r1", "config.json"))
+    bad["env"]["track"] = 5
+    runs.write_file("r1", "config.json", json.dumps(bad))
+    with pytest.raises(StoreError) as err:
+        runs.read_config("r1")
+    assert str(err.value) == "run r1: config.json: env.track: Input should be a valid string (got 5)"
+    runs.write_file("r1", "config.json", "{not json")
+    with pytest.raises(StoreError, match=r"^run r1: config.json: \(top level\): Invalid JSON") as err:
+        runs.read_config("r1")
+    assert "\n" not in str(err.value)
+
+
+def test_metrics_and_evaluations_are_read_in_order_skipping_malformed_ones(tmp_path, caplog):
+    runs = RunStore(LocalStore(tmp_path))
+    runs.write_file("r", "reward_function.py", "")
+    with pytest.raises(StoreKeyError, match="run 'r' has no file 'metrics.jsonl'"):
+        runs.read_metrics("r")
+    assert runs.read_metrics("r", missing_ok=True) == []
+    assert runs.read_metrics("nope", missing_ok=True) == []
+    runs.write_file("r", "metrics.jsonl", '{"iteration": 1}\n\n[1]\n{not json\n{"iteration": 2}\n')
+    assert runs.read_metrics("r") == [{"iteration": 1}, {"iteration": 2}]
+    assert "skipping malformed line 3 of metrics.jsonl" in caplog.text
+    assert "malformed line 4" in caplog.text
+    for version, score in ((8, 2.0), (4, 1.0)):
+        runs.write_file("r", f"evaluations/{version:09d}.json", json.dumps({"score": score, "version": 99}))
+    runs.write_file("r", "evaluations/000000009.json", "[]")
+    assert runs.evaluation_versions("r") == [4, 8, 9]
+    assert runs.read_evaluation("r", 8) == {"score": 2.0, "version": 99}
+    with pytest.raises(StoreError, match="malformed evaluation .*000000009.json"):
+        runs.read_evaluation("r", 9)
+    with pytest.raises(StoreKeyError, match="no file 'evaluations/000000005.json'"):
+        runs.read_evaluation("r", 5)
+    # The file name is the truth for the version; the malformed one is skipped with a warning.
+    assert runs.read_evaluations("r") == [{"score": 1.0, "version": 4}, {"score": 2.0, "version": 8}]
+    assert "skipping evaluation 9" in caplog.text
+
+
 def test_list_runs_and_list_models_across_two_runs(store):
     runs = RunStore(store)
     _save(runs, "run-a", [1, 2])

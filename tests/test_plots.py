@@ -14,11 +14,9 @@ from racer.plots import (
     DPI,
     TRAINING_FIGSIZE,
     TRAJECTORY_FIGSIZE,
-    evaluation_versions,
     plot_run,
     plot_training,
     plot_trajectories,
-    read_evaluations,
 )
 from sim.track import load_track
 from tests.conftest import S3_BUCKET
@@ -146,7 +144,7 @@ def test_plot_trajectories_draws_coloured_paths_on_the_track(tmp_path, run_id):
     rgb = read_png(out, TRAJECTORY_FIGSIZE)
     # The same figure with no trials is the baseline: the track alone (its centre line is yellow, so coloured too).
     empty = write_run(tmp_path / "empty", run_id, evaluations=False)
-    evaluation = read_evaluations(run_id, runs)[-1]
+    evaluation = runs.read_evaluations(run_id)[-1]
     empty.write_file(run_id, "evaluations/000000008.json", json.dumps({**evaluation, "trials": []}))
     baseline = read_png(plot_trajectories(run_id, empty, tmp_path / "empty.png"), TRAJECTORY_FIGSIZE)
     assert coloured_fraction(baseline) < coloured_fraction(rgb)
@@ -159,7 +157,7 @@ def test_plot_trajectories_draws_coloured_paths_on_the_track(tmp_path, run_id):
 
 def test_plot_trajectories_picks_the_version(tmp_path, run_id):
     runs = write_run(tmp_path / "store", run_id)
-    assert evaluation_versions(run_id, runs) == [4, 8]
+    assert runs.evaluation_versions(run_id) == [4, 8]
     a = read_png(plot_trajectories(run_id, runs, tmp_path / "v4.png", version=4), TRAJECTORY_FIGSIZE)
     b = read_png(plot_trajectories(run_id, runs, tmp_path / "newest.png"), TRAJECTORY_FIGSIZE)
     assert np.abs(a.astype(int) - b.astype(int)).mean() > 0.5  # different trials drawn
@@ -195,7 +193,7 @@ def test_plot_run_skips_trajectories_without_evaluations(tmp_path, run_id, caplo
 def test_malformed_evaluation_is_skipped(tmp_path, run_id):
     runs = write_run(tmp_path / "store", run_id)
     runs.write_file(run_id, "evaluations/000000009.json", "{not json")
-    assert [e["version"] for e in read_evaluations(run_id, runs)] == [4, 8]
+    assert [e["version"] for e in runs.read_evaluations(run_id)] == [4, 8]
     read_png(plot_training(run_id, runs, tmp_path / "training.png"), TRAINING_FIGSIZE)
 
 

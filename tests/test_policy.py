@@ -282,3 +282,36 @@ def test_checkpoint_structure_checked() -> None:
         checkpoint_from_bytes(state_dict_to_bytes({"w": torch.zeros(1)}))
     with pytest.raises(CheckpointError, match="state dict"):
         state_dict_from_bytes(state_dict_to_bytes([torch.zeros(1)]))  # type: ignore[arg-type]
+
+
+def test_load_policy_gives_the_saved_weights_in_eval_mode(tmp_path: Path) -> None:
+    """The one loader of a stored checkpoint for acting: by version, pointer or decimal string, from a RunConfig or
+    the run id (its config.json), it gives exactly the weights saved (batch-norm statistics too), in eval mode."""
+    from common.config import RunConfig
+    from common.hyperparams import Hyperparameters
+    from common.policy import load_policy
+    from model_store import LocalStore, RunStore, StoreKeyError
+
+    runs = RunStore(LocalStore(tmp_path))
+    cfg = PolicyConfig(batch_norm=True, dropout=0.2, stack_size=2)
+    run = RunConfig(run_id="p", hyperparams=Hyperparameters(stack_size=2), policy=cfg)
+    runs.write_config(run)
+    actions = default_action_space()
+    saved = []
+    for version in (0, 1):
+        torch.manual_seed(version)
+        model = build_policy((*SMALL[:2], 2), action_space_spec(actions), cfg).train()
+        model(torch.from_numpy(_obs(4, (*SMALL[:2], 2), version)))  # moves the batch-norm running statistics
+        runs.save_checkpoint("p", version, checkpoint_to_bytes(model.state_dict()), {"env_steps": 10 * version})
+        saved.append(model.state_dict())
+    runs.set_pointer("p", "best", 0)
+    for source in (run, "p"):
+        for checkpoint, version in ((0, 0), ("1", 1), ("latest", 1), ("best", 0)):
+            loaded, meta = load_policy(runs, source, actions, checkpoint, frame=SMALL[:2])
+            assert not loaded.training and loaded.obs_shape == (*SMALL[:2], 2)
+            assert meta["version"] == version and meta["env_steps"] == 10 * version
+            state = loaded.state_dict()
+            assert state.keys() == saved[version].keys()
+            assert all(torch.equal(state[k], saved[version][k]) for k in state)
+    with pytest.raises(StoreKeyError, match="checkpoint 7"):
+        load_policy(runs, run, actions, 7, frame=SMALL[:2])

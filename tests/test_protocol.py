@@ -150,7 +150,7 @@ def test_policy_version_and_heartbeat_roundtrip_and_validation():
 
 def test_keys_live_under_one_prefix_and_run_ids_are_checked():
     k = Keys("run-1")
-    names = [k.segments, k.policy, k.policy_channel, k.heartbeat("w"), k.trainer_status, k.stop]
+    names = [k.segments, k.policy, k.heartbeat("w"), k.trainer_status, k.worker_slots, k.evaluations, k.training]
     assert all(n.startswith("racer:run-1:") for n in names) and len(set(names)) == len(names)
     for bad in ("", "a b", "../x", "x" * 200, "a:b"):
         with pytest.raises(ValueError, match="run id"):

@@ -1,7 +1,8 @@
 """The collapse guard (trainer.process): its rule by hand, and a rollback against a real Redis and store.
 
 The evaluations are fabricated but travel the evaluator's own way: ``save_evaluation`` stores the record and moves
-``best``, then ``_report`` pushes the summary to the Redis list, as ``run_evaluator`` does after each checkpoint.
+``best``, then ``Bus.report_evaluation`` pushes the summary to the Redis list, as ``run_evaluator`` does after each
+checkpoint.
 """
 
 from __future__ import annotations
@@ -13,13 +14,14 @@ import pytest
 import redis
 import torch
 
+from common.bus import Bus
 from common.keys import Keys
 from common.policy import checkpoint_from_bytes, state_dict_from_bytes
 from common.protocol import PolicyVersion
 from model_store import RunStore, open_store
 from model_store.runs import METRICS_FILE
 from tests.test_training_loop import fill, start
-from trainer.evaluator import _SUMMARY_KEYS, _report, save_evaluation, score
+from trainer.evaluator import evaluation_summary, save_evaluation, score
 from trainer.process import CollapseWatch, Stability, Trainer, TrainerOptions, is_collapsed
 
 # --- the rule ------------------------------------------------------------------------------------------------
@@ -105,7 +107,7 @@ def evaluated(runs: RunStore, r: redis.Redis, run_id: str, version: int, complet
         "trials": [],
     }
     moved = save_evaluation(runs, record)
-    _report(r, Keys(run_id), json.dumps({**{k: record[k] for k in _SUMMARY_KEYS}, "best": moved}))
+    Bus(r, run_id).report_evaluation(evaluation_summary(record, moved))
 
 
 def _same(a: dict, b: dict) -> bool:

@@ -25,18 +25,18 @@ import numpy as np
 import torch
 
 from common.action_space import default_action_space, load_action_space
+from common.bus import Bus
 from common.config import EnvConfig, RunConfig
 from common.framestack import FrameStack
-from common.keys import Keys
-from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
-from common.protocol import PolicyVersion, ProtocolError
+from common.policy import ActorCritic, load_policy
+from common.protocol import EvaluationSummary, PolicyVersion, ProtocolError
 from common.redis_util import connect_checked, redact
-from common.retry import Outage, redis_transient
+from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
 from common.simtrace import SimTraceRecorder, evaluation_stamp, simtrace_key
 from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
 from model_store.runs import evaluation_name
-from sim.env import OBS_SHAPE, RacerEnv
+from sim.env import RacerEnv
 
 log = logging.getLogger("racer.evaluator")
 
@@ -225,18 +225,6 @@ def evaluate(
     return trials
 
 
-def load_model(runs: RunStore, run: RunConfig, env_cfg: EnvConfig, version: int | str) -> tuple[ActorCritic, dict]:
-    """The checkpoint's network, ready to act, and its metadata."""
-    payload, meta = runs.load_checkpoint(run.run_id, version)
-    # The network needs only the action space and the frame size, not a whole world (texture, MuJoCo model).
-    actions = load_action_space(env_cfg.action_space) if env_cfg.action_space else default_action_space()
-    obs_shape = (*OBS_SHAPE[:2], run.hyperparams.stack_size)
-    model = build_policy(obs_shape, action_space_spec(actions), run.policy)
-    model.load_state_dict(checkpoint_from_bytes(payload)[0])
-    model.eval()
-    return model, meta
-
-
 def evaluate_checkpoint(
     runs: RunStore,
     run: RunConfig,
@@ -248,7 +236,9 @@ def evaluate_checkpoint(
     """Evaluate one stored checkpoint; the full record (summary, settings and trials). ``recorder`` collects the
     DeepRacer sim-trace rows of every trial."""
     torch.manual_seed(settings.seed)
-    model, meta = load_model(runs, run, env_cfg, version)
+    # The network needs only the action space and the frame size, not a whole world (texture, MuJoCo model).
+    actions = load_action_space(env_cfg.action_space) if env_cfg.action_space else default_action_space()
+    model, meta = load_policy(runs, run, actions, version)
     trials = evaluate(model, env_cfg, run.hyperparams.stack_size, settings, recorder)
     return {
         "run_id": run.run_id,
@@ -289,53 +279,57 @@ class EvaluatorOptions:
     every: int = 1
     """Evaluate every N-th policy version (always the newest one when it falls behind)."""
     settings: EvalSettings = field(default_factory=EvalSettings)
+    outage_s: float = DEFAULT_GIVE_UP_S
+    """How long to ride out one Redis or store outage before exiting with an error, seconds."""
 
 
 def run_evaluator(opts: EvaluatorOptions, stop: threading.Event | None = None) -> None:
     """The evaluator process: evaluate new checkpoints as the trainer publishes them, keep ``best``, and
-    push each summary to Redis for ``racer train`` (status line, ``--stop-when-robust``)."""
+    push each summary to Redis for ``racer train`` (status line, ``--stop-when-robust``).
+
+    A Redis or store outage shorter than ``opts.outage_s`` is ridden out (``common/retry.py: Outage``); a longer one
+    ends it with OutageError."""
     torch.set_num_threads(1)
     stop = stop or threading.Event()
-    r, keys = connect_checked(opts.redis_url), Keys(opts.run_id)
+    bus = Bus(connect_checked(opts.redis_url), opts.run_id)
     runs = RunStore(open_store(opts.store, opts.s3_endpoint))
-    on_redis = Outage(f"Redis at {redact(opts.redis_url)}", redis_transient, log, stop).call
-    on_store = Outage(f"store {runs.store.uri}", is_transient, log, stop).call
+    on_redis = Outage(f"Redis at {redact(opts.redis_url)}", redis_transient, log, stop, opts.outage_s).call
+    on_store = Outage(f"store {runs.store.uri}", is_transient, log, stop, opts.outage_s).call
     done = -1
-    with tempfile.TemporaryDirectory(prefix="racer-eval-") as tmp:
-        run = env_cfg = None
-        while not stop.is_set():
-            pv = on_redis("read the policy version", partial(_newest, r, keys))
-            # Version 0 is the untrained initialization: evaluating it would take a core from the first collection.
-            if pv is None or pv.version == 0 or pv.version <= done or pv.version % max(1, opts.every):
-                stop.wait(0.5)
-                continue
-            if run is None:
-                run = RunConfig.model_validate_json(
-                    on_store("read the run", partial(runs.read_file, opts.run_id, "config.json"))
-                )
-                env_cfg = on_store("read the run's files", partial(localize_env, run, runs, Path(tmp)))
-            recorder = SimTraceRecorder()
-            evaluate = partial(evaluate_checkpoint, runs, run, env_cfg, pv.version, opts.settings, recorder)
-            try:
-                record = on_store(f"evaluate v{pv.version}", evaluate)
-            except StoreKeyError:  # pruned while we were behind: the next newest one will do
+    try:
+        with tempfile.TemporaryDirectory(prefix="racer-eval-") as tmp:
+            run = env_cfg = None
+            while not stop.is_set():
+                pv = on_redis("read the policy version", partial(_newest, bus))
+                # Version 0 is the untrained initialization: evaluating it would take a core from the first
+                # collection.
+                if pv is None or pv.version == 0 or pv.version <= done or pv.version % max(1, opts.every):
+                    stop.wait(0.5)
+                    continue
+                if run is None:
+                    run = on_store("read the run", partial(runs.read_config, opts.run_id))
+                    env_cfg = on_store("read the run's files", partial(localize_env, run, runs, Path(tmp)))
+                recorder = SimTraceRecorder()
+                evaluate = partial(evaluate_checkpoint, runs, run, env_cfg, pv.version, opts.settings, recorder)
+                try:
+                    record = on_store(f"evaluate v{pv.version}", evaluate)
+                except StoreKeyError:  # pruned while we were behind: the next newest one will do
+                    done = pv.version
+                    continue
+                moved = on_store("save the evaluation", partial(save_evaluation, runs, record))
+                on_store("save the sim-trace", partial(_save_simtrace, runs, opts.run_id, recorder, record["created"]))
+                summary = evaluation_summary(record, moved)
+                on_redis("report the evaluation", partial(bus.report_evaluation, summary))
+                log.info("evaluated version %d: %s%s", pv.version, summary, " (new best)" if moved else "")
                 done = pv.version
-                continue
-            moved = on_store("save the evaluation", partial(save_evaluation, runs, record))
-            on_store("save the sim-trace", partial(_save_simtrace, runs, opts.run_id, recorder, record["created"]))
-            summary = {k: record[k] for k in _SUMMARY_KEYS}
-            entry = json.dumps({**summary, "best": moved})
-            on_redis("report the evaluation", partial(_report, r, keys, entry))
-            log.info("evaluated version %d: %s%s", pv.version, summary, " (new best)" if moved else "")
-            done = pv.version
+    except InterruptedError:  # stopped (SIGTERM) while Redis or the store was unreachable
+        log.warning("stopped during an outage (last evaluated version: %d)", done)
 
 
-_SUMMARY_KEYS = ("version", "env_steps", "completion_rate", "mean_progress", "best_lap_s", "off_track", "score")
-
-
-def _report(r, keys: Keys, entry: str) -> None:
-    """Append an evaluation summary for ``racer train`` (the list is capped: a run lasts hours)."""
-    r.pipeline().rpush(keys.evaluations, entry).ltrim(keys.evaluations, -1000, -1).execute()
+def evaluation_summary(record: dict, moved: bool) -> EvaluationSummary:
+    """What the evaluator reports on the bus of an evaluation ``record``; ``moved``: it became the best."""
+    fields = set(EvaluationSummary.model_fields) - {"best"}
+    return EvaluationSummary.model_validate({**{k: record[k] for k in fields}, "best": moved})
 
 
 def _save_simtrace(runs: RunStore, run_id: str, recorder: SimTraceRecorder, created: float) -> None:
@@ -346,11 +340,8 @@ def _save_simtrace(runs: RunStore, run_id: str, recorder: SimTraceRecorder, crea
         runs.store.put(key, text.encode())
 
 
-def _newest(r, keys: Keys) -> PolicyVersion | None:
-    raw = r.get(keys.policy)
-    if raw is None:
-        return None
+def _newest(bus: Bus) -> PolicyVersion | None:
     try:
-        return PolicyVersion.from_json(raw)
+        return bus.policy()
     except ProtocolError:
         return None

@@ -27,8 +27,8 @@ from pathlib import Path
 
 import torch
 
+from common.bus import Bus
 from common.config import PretrainedError, RunConfig, check_precision
-from common.keys import Keys
 from common.policy import (
     ActorCritic,
     Precision,
@@ -40,7 +40,7 @@ from common.policy import (
     state_dict_from_bytes,
     state_dict_to_bytes,
 )
-from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, decode_segment
+from common.protocol import EpisodeSummary, PolicyVersion, ProtocolError, Segment, decode_segment
 from common.redis_util import connect_checked, redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
 from model_store import RunStore, StoreKeyError, is_transient, open_store
@@ -186,8 +186,8 @@ class Trainer:
     def __init__(self, run: RunConfig, opts: TrainerOptions, stop: threading.Event | None = None) -> None:
         self.run, self.opts = run, opts
         self.stop = stop or threading.Event()
-        self.keys = Keys(run.run_id)
         self.redis = connect_checked(opts.redis_url)
+        self.bus = Bus(self.redis, run.run_id)
         self.runs = RunStore(open_store(opts.store, opts.s3_endpoint))
         self.redis_outage = Outage(f"Redis at {redact(opts.redis_url)}", redis_transient, log, self.stop, opts.outage_s)
         self.store_outage = Outage(f"store {self.runs.store.uri}", is_transient, log, self.stop, opts.outage_s)
@@ -219,7 +219,7 @@ class Trainer:
                 self.store_outage.call("read the pretrained checkpoint", self._load_pretrained)
             self._checkpoint()
         # A predecessor killed mid-update leaves its "training" mark, which would hold the workers back.
-        self.redis_outage.call("publish the policy", lambda: (self.redis.delete(self.keys.training), self._publish()))
+        self.redis_outage.call("publish the policy", lambda: (self.bus.clear_training(), self._publish()))
         log.info(
             "run %s: policy v%d published; store %s, Redis %s; PPO updates in %s on %d threads",
             self.run.run_id,
@@ -237,7 +237,7 @@ class Trainer:
             mirror = {"model_metadata.json": "model/", "hyperparameters.json": "ip/"}.get(name)
             if mirror:
                 self.runs.write_file(self.run.run_id, mirror + name, data)
-        self.runs.write_file(self.run.run_id, "config.json", self.run.model_dump_json(indent=2))
+        self.runs.write_config(self.run)
 
     def _build(self) -> None:
         """Network and optimizer for the run's action space (read from the run's stored files)."""
@@ -345,11 +345,7 @@ class Trainer:
 
     def _publish(self) -> None:
         key = checkpoint_key(self.run.run_id, self.version)
-        pv = PolicyVersion(version=self.version, checkpoint_key=key, created=time.time()).to_json()
-        pipe = self.redis.pipeline(transaction=False)
-        pipe.set(self.keys.policy, pv)
-        pipe.publish(self.keys.policy_channel, pv)
-        pipe.execute()
+        self.bus.publish_policy(PolicyVersion(version=self.version, checkpoint_key=key, created=time.time()))
 
     # --- the loop -----------------------------------------------------------------------------
     def run_forever(self) -> None:
@@ -372,22 +368,21 @@ class Trainer:
     def housekeeping(self) -> None:
         """Once a second: the status for ``racer train``, and the policy key again if Redis lost it (a restarted
         Redis without persistence comes back empty; workers and the evaluator need the key to find the policy)."""
-        if not self.redis.exists(self.keys.policy):
+        if not self.bus.has_policy():
             log.warning("the policy key was missing from Redis (restarted?): publishing version %d again", self.version)
             self._publish()
         self.write_status()
 
     def read(self, block_ms: int = 500, count: int = 64) -> int:
         """Pull new segments into the buffer (validating, dropping stale ones); returns how many were kept."""
-        reply = self.redis.xread({self.keys.segments: self.last_id}, count=count, block=block_ms)
+        entries = self.bus.read_segments(self.last_id, count, block_ms)
         kept = 0
-        for _, entries in reply or []:
-            for entry_id, fields in entries:
-                self.last_id = entry_id
-                kept += self._accept(fields)
-        if reply:
+        for entry_id, fields in entries:
+            self.last_id = entry_id
+            kept += self._accept(fields)
+        if entries:
             # Entries read are in the buffer now: free them in Redis at once rather than when MAXLEN pushes them out.
-            self.redis.xtrim(self.keys.segments, minid=self.last_id, approximate=True)
+            self.bus.drop_segments_through(self.last_id)
         return kept
 
     def _accept(self, fields: dict) -> int:
@@ -421,7 +416,7 @@ class Trainer:
     def train(self) -> dict[str, float]:
         """One PPO iteration on the buffer, then checkpoint and publish the next version."""
         t0 = time.monotonic()
-        self.redis_outage.call("mark the update", lambda: self.redis.set(self.keys.training, self.version, ex=600))
+        self.redis_outage.call("mark the update", lambda: self.bus.mark_training(self.version))
         batch = make_batch(self.buffer, self.hp.discount_factor, self.run.hyperparams.gae_lambda)
         episodes = [e for s in self.buffer for e in s.episodes]
         lags = [self.version - s.policy_version for s in self.buffer]
@@ -448,7 +443,7 @@ class Trainer:
         self.version += 1
         self.stats.iteration += 1
         self._checkpoint()
-        self.redis_outage.call("publish the policy", lambda: (self._publish(), self.redis.delete(self.keys.training)))
+        self.redis_outage.call("publish the policy", lambda: (self._publish(), self.bus.clear_training()))
         self.store_outage.call("prune checkpoints", self._prune)
         self._record(result, episodes, lags, batch, time.monotonic() - t0)
         log.info("iteration %d: version %d, %s", self.stats.iteration, self.version, result)
@@ -491,8 +486,8 @@ class Trainer:
     def _new_evaluations(self) -> list[dict]:
         """The evaluator's summaries (``trainer.evaluator._report``) the watch has not looked at yet."""
         # A malformed entry (not the evaluator's) is skipped: it says nothing about a checkpoint.
-        raws = self.redis.lrange(self.keys.evaluations, -EVALUATION_WINDOW, -1)
-        return self.watch.fresh([s for s in map(_evaluation_summary, raws) if s is not None])
+        summaries, _ = self.bus.evaluations(last=EVALUATION_WINDOW)
+        return self.watch.fresh([s.model_dump() for s in summaries])
 
     def _best_evaluation(self) -> tuple[int, float] | None:
         """(version, completion rate) of the ``best`` checkpoint's evaluation, or None while there is none."""
@@ -650,19 +645,14 @@ class Trainer:
 
     def write_status(self) -> None:
         """Publish the status to Redis (a key with a TTL) for ``racer train``'s live line."""
-        self.redis.set(self.keys.trainer_status, json.dumps(self.status()), ex=30)
+        self.bus.set_trainer_status(self.status())
 
     def workers(self) -> list[dict]:
         """Live workers from their heartbeat keys (SCAN, never KEYS); names, once, each worker that went silent."""
-        out = []
-        for key in self.redis.scan_iter(match=self.keys.heartbeat_pattern, count=100):
-            raw = self.redis.get(key)
-            if raw is None:
-                continue  # expired between SCAN and GET
-            try:
-                out.append(Heartbeat.from_json(raw).model_dump())
-            except ProtocolError:
-                self.stats.drop("bad_heartbeat")
+        beats, bad = self.bus.heartbeats()
+        for _ in range(bad):
+            self.stats.drop("bad_heartbeat")
+        out = [hb.model_dump() for hb in beats]
         self._note_silent({w["worker_id"]: w for w in out})
         return out
 
@@ -684,17 +674,6 @@ class Trainer:
             if self.silent.pop(wid, None) is not None:
                 log.warning("worker %s is sending heartbeats again", wid)
         self.live.update(alive)
-
-
-def _evaluation_summary(raw: bytes | str) -> dict | None:
-    """An evaluator summary with an int ``version`` and a float ``completion_rate``, or None if it is malformed."""
-    try:
-        summary = json.loads(raw)
-        summary["version"] = int(summary["version"])
-        summary["completion_rate"] = float(summary["completion_rate"])
-    except (TypeError, KeyError, ValueError):
-        return None
-    return summary
 
 
 def resolve_precision(precision: str) -> Precision:

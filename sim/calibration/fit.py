@@ -35,7 +35,7 @@ import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
 from common.car_calibration import CANDIDATE_EFFECTS, EFFECTS, CarCalibration, CarEffect, ParamSpec
-from sim.calibration.logs import Trajectory
+from sim.calibration.logs import LogError, Trajectory
 from sim.calibration.replay import Replayer, Windows, detect_timing, make_windows, residuals
 from sim.calibration.response import command_response, simulate_open_loop
 
@@ -543,7 +543,7 @@ def calibrate(
         timing = detect_timing(trajectories)  # one rule for all parts, decided on all the logs given
     parts = split_episodes(trajectories)
     if not all(parts.values()):
-        raise ValueError(f"need at least 4 usable episodes to fit, choose and report apart; got {len(trajectories)}")
+        raise LogError(f"need at least 4 usable episodes to fit, choose and report apart; got {len(trajectories)}")
     replayer = Replayer()
     fit_w, sel_w = fit_windows(parts, max_windows, timing)
     scales = channel_scales(residuals(replayer.replay(fit_w), fit_w.measured()))

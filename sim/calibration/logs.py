@@ -64,6 +64,7 @@ from pathlib import Path
 
 import numpy as np
 
+from common.errors import UserError
 from common.simtrace import COLUMNS
 
 log = logging.getLogger(__name__)
@@ -90,7 +91,7 @@ _ARRAY_FIELDS = ("t", "steer_cmd_deg", "speed_cmd_mps", "x", "y", "heading_deg")
 _META_LINE = re.compile(r"#\s*(\w+)\s*:\s*(.*?)\s*$")
 
 
-class LogError(ValueError):
+class LogError(UserError, ValueError):
     """A log that cannot be used; the one-line message names the file (and line or episode) and what is wrong."""
 
 

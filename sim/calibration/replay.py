@@ -29,8 +29,9 @@ import numpy as np
 from mujoco import rollout
 
 from common.car_calibration import CarCalibration
+from common.errors import OptionError
 from sim.actuation import ActuationParams, actuate_sequence
-from sim.calibration.logs import Trajectory
+from sim.calibration.logs import LogError, Trajectory
 from sim.physics import TRACK_WIDTH_M, WHEEL_RADIUS_M, CarPhysics, Pose, yaw_of_quaternion
 from sim.texture import TextureFrame
 from sim.world import CONTROL_HZ, PHYSICS_SUBSTEPS, build_model
@@ -136,11 +137,11 @@ def make_windows(
     their start for the initial speed, so they start at sample 1 and end at least one sample before the last.
     """
     if not trajectories:
-        raise ValueError("no trajectories to make replay windows from")
+        raise LogError("no trajectories to make replay windows from")
     if timing == "auto":
         timing = detect_timing(trajectories)
     if timing not in TIMINGS:
-        raise ValueError(f"timing {timing!r} is not one of {', '.join(TIMINGS)} or auto")
+        raise OptionError(f"timing {timing!r} is not one of {', '.join(TIMINGS)} or auto")
     median = max(1, round(float(np.median(np.concatenate([np.diff(t.t) for t in trajectories]))) / SUBSTEP_S))
     horizon = max(2, round(window_s / (median * SUBSTEP_S)))
     stride = stride or horizon
@@ -150,7 +151,7 @@ def make_windows(
         traj.extend([i] * len(ks))
         start.extend(ks)
     if not start:
-        raise ValueError(
+        raise LogError(
             f"no replay window: every episode is shorter than {horizon + 2} rows ({window_s:g} s and a row either side)"
         )
     subs = [row_substeps(tr, timing, median) for tr in trajectories]

@@ -1,0 +1,164 @@
+"""One run's Redis bus: every command racer sends to Redis, on the keys of :mod:`common.keys`, with the typed
+messages of :mod:`common.protocol`. The roles, the launcher and the benches talk to Redis only through a
+:class:`Bus`; nothing read from Redis is unpickled (segments are raw arrays, messages strict JSON).
+
+Errors of the connection (``redis.RedisError``) pass through: the roles ride them out with ``common.retry``.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import redis
+
+from common.keys import Keys
+from common.protocol import EvaluationSummary, Heartbeat, PolicyVersion, ProtocolError
+
+EVALUATIONS_KEPT = 1000
+"""Evaluation summaries kept in Redis (a run lasts hours; the store keeps every evaluation)."""
+TRAINER_STATUS_TTL_S = 30
+"""The trainer's status key expires this long after its last refresh (it refreshes every second)."""
+TRAINING_MARK_TTL_S = 600
+"""The "PPO update running" mark expires on its own if the trainer dies mid-update."""
+
+
+class Bus:
+    """The Redis traffic of run ``run_id`` over ``client``."""
+
+    def __init__(self, client: redis.Redis, run_id: str) -> None:
+        self.redis = client
+        self.keys = Keys(run_id)
+
+    # --- the policy: trainer → workers, evaluator ----------------------------------------------
+    def publish_policy(self, pv: PolicyVersion) -> None:
+        """Make ``pv`` the run's newest policy (workers poll the key between segments)."""
+        self.redis.set(self.keys.policy, pv.to_json())
+
+    def policy(self) -> PolicyVersion | None:
+        """The newest published policy, None before the first; ProtocolError if the key holds something else."""
+        raw = self.redis.get(self.keys.policy)
+        return None if raw is None else PolicyVersion.from_json(raw)
+
+    def has_policy(self) -> bool:
+        """The policy key exists (a restarted Redis without persistence comes back without it)."""
+        return bool(self.redis.exists(self.keys.policy))
+
+    # --- segments: workers → trainer ------------------------------------------------------------
+    def push_segment(self, fields: dict[str, bytes], heartbeat: Heartbeat, maxlen: int, heartbeat_ttl_s: int) -> None:
+        """Append an encoded segment to the capped stream and refresh the worker's heartbeat, in one round trip."""
+        pipe = self.redis.pipeline(transaction=False)
+        pipe.xadd(self.keys.segments, fields, maxlen=maxlen, approximate=True)
+        pipe.set(self.keys.heartbeat(heartbeat.worker_id), heartbeat.to_json(), ex=heartbeat_ttl_s)
+        pipe.execute()
+
+    def read_segments(self, after: bytes | str, count: int, block_ms: int) -> list[tuple[bytes, dict]]:
+        """Up to ``count`` segments after stream id ``after`` as (id, fields), waiting up to ``block_ms`` for one."""
+        reply = self.redis.xread({self.keys.segments: after}, count=count, block=block_ms)
+        return [entry for _, entries in reply or [] for entry in entries]
+
+    def drop_segments_through(self, entry_id: bytes | str) -> None:
+        """Free the segments up to ``entry_id`` (read into the trainer's buffer) rather than when MAXLEN would."""
+        self.redis.xtrim(self.keys.segments, minid=entry_id, approximate=True)
+
+    def segments_queued(self) -> int:
+        """Segments in the stream now."""
+        return int(self.redis.xlen(self.keys.segments))
+
+    # --- workers: slots and heartbeats -----------------------------------------------------------
+    def take_worker_slot(self) -> int:
+        """The next free worker index, 0, 1, … (for workers started without one, e.g. scaled compose workers)."""
+        return int(self.redis.incr(self.keys.worker_slots)) - 1
+
+    def beat(self, heartbeat: Heartbeat, ttl_s: int) -> None:
+        """Refresh a worker's heartbeat key (it expires ``ttl_s`` after the last beat)."""
+        self.redis.set(self.keys.heartbeat(heartbeat.worker_id), heartbeat.to_json(), ex=ttl_s)
+
+    def heartbeats(self) -> tuple[list[Heartbeat], int]:
+        """The live workers' heartbeats (SCAN, never KEYS), and how many keys held something malformed."""
+        beats, bad = [], 0
+        for key in self.redis.scan_iter(match=self.keys.heartbeat_pattern, count=100):
+            raw = self.redis.get(key)
+            if raw is None:
+                continue  # expired between SCAN and GET
+            try:
+                beats.append(Heartbeat.from_json(raw))
+            except ProtocolError:
+                bad += 1
+        return beats, bad
+
+    # --- the trainer's state ---------------------------------------------------------------------
+    def set_trainer_status(self, status: dict[str, Any]) -> None:
+        """The trainer's progress for displays and health checks; expires unless refreshed."""
+        self.redis.set(self.keys.trainer_status, json.dumps(status), ex=TRAINER_STATUS_TTL_S)
+
+    def trainer_status(self) -> dict[str, Any] | None:
+        """The trainer's last status, None if it is not running (or wrote none for TRAINER_STATUS_TTL_S)."""
+        raw = self.redis.get(self.keys.trainer_status)
+        status = _json_object(raw) if raw is not None else None
+        return status
+
+    def mark_training(self, version: int) -> None:
+        """Say a PPO update from ``version`` is running (workers with max_policy_lag 0 wait for its result)."""
+        self.redis.set(self.keys.training, version, ex=TRAINING_MARK_TTL_S)
+
+    def clear_training(self) -> None:
+        """The PPO update is over (or a predecessor's mark is stale)."""
+        self.redis.delete(self.keys.training)
+
+    def training(self) -> bool:
+        """A PPO update is running."""
+        return bool(self.redis.exists(self.keys.training))
+
+    # --- evaluations: evaluator → trainer, launcher ----------------------------------------------
+    def report_evaluation(self, summary: EvaluationSummary) -> None:
+        """Append an evaluation summary to the capped list."""
+        key = self.keys.evaluations
+        self.redis.pipeline().rpush(key, summary.to_json()).ltrim(key, -EVALUATIONS_KEPT, -1).execute()
+
+    def evaluations(self, last: int | None = None) -> tuple[list[EvaluationSummary], int]:
+        """The evaluation summaries, oldest first (only the ``last`` N if given), and how many were malformed."""
+        raws = self.redis.lrange(self.keys.evaluations, -last if last else 0, -1)
+        summaries, bad = [], 0
+        for raw in raws:
+            try:
+                summaries.append(EvaluationSummary.from_json(raw))
+            except ProtocolError:
+                bad += 1
+        return summaries, bad
+
+    # --- all of it, for racer status -------------------------------------------------------------------
+    def snapshot(self) -> dict[str, Any]:
+        """The run as Redis sees it now: trainer status, live workers, newest policy, last evaluation, queue."""
+        try:
+            policy = self.policy()
+        except ProtocolError:
+            policy = None
+        evaluations, _ = self.evaluations(last=1)
+        return {
+            "run_id": self.keys.run_id,
+            "trainer": self.trainer_status(),
+            "workers": [hb.model_dump() for hb in self.heartbeats()[0]],
+            "policy": policy.model_dump() if policy else None,
+            "last_evaluation": evaluations[-1].model_dump() if evaluations else None,
+            "segments_queued": self.segments_queued(),
+            "training": self.training(),
+        }
+
+    # --- the server --------------------------------------------------------------------------------
+    def memory(self) -> dict[str, int]:
+        """Redis's used and peak memory (bytes) and its key count, for the benches."""
+        info = self.redis.info("memory")
+        return {
+            "used": int(info["used_memory"]),
+            "peak": int(info["used_memory_peak"]),
+            "keys": int(self.redis.dbsize()),
+        }
+
+
+def _json_object(raw: bytes | str) -> dict[str, Any] | None:
+    try:
+        value = json.loads(raw)
+    except ValueError:
+        return None
+    return value if isinstance(value, dict) else None

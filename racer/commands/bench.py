@@ -1,0 +1,214 @@
+"""``racer bench``: the benchmarks behind the figures in the README and docs/, each printing a table and
+optionally writing its JSON."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from common.errors import OptionError
+from racer.commands.options import Car, Hyperparams, JsonOut, console, int_list, write_json
+
+app = typer.Typer(no_args_is_help=True, help="Benchmarks.")
+
+TrackOpt = Annotated[str, typer.Option(help="Track name or .npy path.")]
+
+
+@app.command("env")
+def env(
+    track: TrackOpt = "reinvent_base",
+    steps: Annotated[int, typer.Option(min=100, help="Env steps per timed run.")] = 3000,
+    repeats: Annotated[int, typer.Option(min=1, help="Timed runs; the median is reported.")] = 5,
+    camera: Annotated[str, typer.Option(help="Camera path: ground or mujoco.")] = "ground",
+    car_calibration: Car = None,
+    json_out: JsonOut = None,
+) -> None:
+    """Env steps per second on one core (physics + camera + reward), and its parts."""
+    from common.car_calibration import CarCalibration, load_car
+    from common.config import EnvConfig
+    from sim.bench import bench_env
+
+    car = load_car(car_calibration) if car_calibration else CarCalibration()
+    result = bench_env(EnvConfig(track=track, camera=camera, car=car), steps=steps, repeats=repeats)
+    table = Table("figure", "value")
+    table.add_row("env steps/s (median)", f"{result['steps_per_s']:.0f}")
+    table.add_row("runs", ", ".join(f"{r:.0f}" for r in result["steps_per_s_runs"]))
+    for part in ("physics", "camera", "task", "reward"):
+        table.add_row(f"{part} µs/step", f"{result[f'{part}_us_per_step']:.1f}")
+    console.print(table)
+    write_json(result, json_out)
+
+
+@app.command("transport")
+def transport(
+    track: TrackOpt = "reinvent_base",
+    segments: Annotated[int, typer.Option(min=3, help="Segments to time.")] = 30,
+    segment_steps: Annotated[int, typer.Option(min=1, help="Env steps per segment.")] = 32,
+    json_out: JsonOut = None,
+) -> None:
+    """Redis transport cost of a segment as a fraction of the time to simulate it (one core)."""
+    from racer.bench_loop import bench_transport
+    from sim.bench import pin_to_one_core
+
+    pin_to_one_core()
+    _print_figures(bench_transport(track, segment_steps, segments), json_out, "{:.4g}")
+
+
+@app.command("loop")
+def loop(
+    workers: Annotated[str, typer.Option(help="Comma-separated worker counts.")] = "1,2,4",
+    duration: Annotated[str, typer.Option(help="Run time per worker count (90s, 5m).")] = "90s",
+    track: TrackOpt = "reinvent_base",
+    hyperparams: Hyperparams = None,
+    json_out: JsonOut = None,
+) -> None:
+    """End-to-end throughput (env steps/s consumed by the trainer), policy propagation and memory, per N workers."""
+    from racer.bench_loop import bench_loop
+    from racer.runconfig import parse_duration
+
+    seconds = parse_duration(duration)
+    counts = int_list(workers, "--workers")
+    hp = str(hyperparams) if hyperparams else None
+    results = [bench_loop(n, seconds, track, hp) for n in counts]
+    table = Table(
+        "workers", "steps/s consumed", "iterations", "propagation s (median/max)", "trainer MB", "worker MB", "redis MB"
+    )
+    for r in results:
+        median, worst = r["propagation_s_median"], r["propagation_s_max"]
+        table.add_row(
+            str(r["workers"]),
+            f"{r['consumed_steps_per_s']:.0f}",
+            str(r["iterations"]),
+            "-" if median is None else f"{median:.2f}/{worst:.2f}",
+            f"{r['trainer_peak_rss_mb']:.0f}",
+            ", ".join(f"{m:.0f}" for m in r["worker_peak_rss_mb"]),
+            f"{r['redis_peak_memory_mb']:.0f}",
+        )
+    console.print(table)
+    write_json(results, json_out)
+
+
+@app.command("train")
+def train(
+    seeds: Annotated[str, typer.Option(help="Comma-separated seeds; medians are over them.")] = "0,1,2",
+    time_limit: Annotated[str, typer.Option(help="Give up on a seed after this long, per system (10m).")] = "10m",
+    track: TrackOpt = "reinvent_base",
+    workers: Annotated[int, typer.Option(min=1, help="racer's workers and SB3's SubprocVecEnv envs.")] = 2,
+    hyperparams: Hyperparams = None,
+    eval_episodes: Annotated[int, typer.Option(min=1, help="Evaluation starts per direction.")] = 3,
+    sb3: Annotated[bool, typer.Option("--sb3/--no-sb3", help="Also train Stable-Baselines3 PPO.")] = True,
+    sb3_n_steps: Annotated[
+        int | None, typer.Option(min=8, help="SB3's steps per env between updates (default: racer's batch / workers).")
+    ] = None,
+    precision: Annotated[str, typer.Option(help="racer's PPO update arithmetic: auto, fp32, bf16.")] = "auto",
+    json_out: JsonOut = None,
+) -> None:
+    """Time and env steps from scratch to a robust lap (every evaluation lap completed), racer vs SB3 PPO."""
+    from common.config import check_precision
+    from racer.bench_train import BenchTrainSettings, bench_train
+    from racer.runconfig import build_run, parse_duration
+
+    seed_numbers = int_list(seeds, "--seeds")
+    check_precision(precision)
+    limit = parse_duration(time_limit)
+    hp = str(hyperparams) if hyperparams else None
+    build_run("bench-check", track=track, hyperparams=hp)  # bad files fail here, in one line
+    if sb3:
+        try:
+            import stable_baselines3  # noqa: F401
+        except ImportError:
+            raise OptionError("--sb3 needs Stable-Baselines3: pip install 'racer[bench]' (or pass --no-sb3)") from None
+    settings = BenchTrainSettings(seed_numbers, limit, track, hp, workers, eval_episodes, sb3, sb3_n_steps, precision)
+    result = bench_train(settings, console)
+    table = Table("figure", "racer", "SB3 PPO")
+    for label, key in (("time to lap s (median)", "time_to_lap_s"), ("env steps to lap", "env_steps_to_lap")):
+        table.add_row(label, _whole(result.get(key)), _whole(result.get(f"sb3_{key}")))
+    table.add_row("seeds lapped", str(result.get("lapped")), str(result.get("sb3_lapped", "-")))
+    console.print(table)
+    if "speedup_vs_sb3" in result:
+        console.print(f"racer reaches a robust lap {result['speedup_vs_sb3']:.2f}× as fast as SB3 PPO")
+    write_json(result, json_out)
+
+
+def _whole(value: float | None) -> str:
+    return "-" if value is None else f"{value:.0f}"
+
+
+@app.command("race")
+def race(
+    car: Annotated[str, typer.Option(help="Car: a preset name (default) or a car.json.")] = "default",
+    track: Annotated[str, typer.Option(help="Track name or .npy path (a loop).")] = "reinvent_base",
+    minutes: Annotated[float, typer.Option(min=0.5, help="Training budget per seed, minutes.")] = 30.0,
+    seeds: Annotated[str, typer.Option(help="Comma-separated seeds; medians are over them.")] = "0,1,2",
+    workers: Annotated[int, typer.Option(min=1, help="Rollout workers.")] = 2,
+    eval_starts: Annotated[int, typer.Option(min=1, help="Evaluation start points (track direction).")] = 10,
+    png: Annotated[Path | None, typer.Option("--png", help="Learning curves with the limit drawn.")] = None,
+    json_out: JsonOut = None,
+) -> None:
+    """Learn to race from scratch (4 m/s actions, the racing reward example) and compare with racer limit."""
+    from common.car_calibration import load_car
+    from racer.bench_race import BenchRaceSettings, bench_race, plot_race
+    from sim.track import load_track
+
+    seed_numbers = int_list(seeds, "--seeds")
+    load_car(car)  # a bad car or track fails now, not after the first seed's training
+    load_track(track)
+    result = bench_race(BenchRaceSettings(seed_numbers, minutes, track, car, workers, eval_starts), console)
+    if png:
+        plot_race(result, png)
+    ratio = result["ratio_to_limit"]
+    console.print(
+        f"median best robust lap {result['best_robust_lap_s']} s, limit {result['limit_s']:.2f} s"
+        + (f" ({ratio:.2f} x)" if ratio else "")
+        + f", collapses {result['collapses']} ({result['collapses_recovered']} recovered)",
+        highlight=False,
+    )
+    write_json(result, json_out)
+
+
+@app.command("update")
+def update(
+    threads: Annotated[int, typer.Option(min=1, help="PyTorch threads (racer train's trainer uses 2).")] = 2,
+    batch: Annotated[int, typer.Option(min=1, help="Minibatch size (DeepRacer's batch_size).")] = 64,
+    repeats: Annotated[int, typer.Option(min=1, help="Timed runs of 10 steps; the median is reported.")] = 5,
+    json_out: JsonOut = None,
+) -> None:
+    """Milliseconds per PPO minibatch step (forward, backward, Adam): fp32/bf16 trunk × Adam loop/fused."""
+    from racer.bench_update import bench_update
+
+    result = bench_update(threads, batch, repeats=repeats)
+    table = Table("setting", "ms per minibatch (median)", "speed-up vs fp32 + Adam loop")
+    for name, ms in result["ms_per_step"].items():
+        table.add_row(name, f"{ms:.1f}", f"{result['speedup_vs_fp32_loop'][name]:.2f}×")
+    console.print(table)
+    write_json(result, json_out)
+
+
+@app.command("soak")
+def soak(
+    duration: Annotated[str, typer.Option(help="Run time (90s, 10m, 2h).")] = "10m",
+    workers: Annotated[int, typer.Option(min=1, help="Rollout worker processes.")] = 2,
+    track: TrackOpt = "Straight_track",
+    stream_maxlen: Annotated[int, typer.Option(min=4, help="Cap of the segment stream, entries.")] = 16,
+    json_out: JsonOut = None,
+) -> None:
+    """A long racer train run sampling Redis memory, keys, the stream and each role's memory: is it bounded?"""
+    from racer.bench_soak import bench_soak
+    from racer.runconfig import parse_duration
+
+    result = bench_soak(parse_duration(duration), workers, track, stream_maxlen)
+    summary = {k: v for k, v in result.items() if k != "samples"}
+    _print_figures(summary, None, "{:.3f}")
+    write_json(result, json_out)
+
+
+def _print_figures(figures: dict, json_out: str | None, float_format: str) -> None:
+    """A two-column table of ``figures`` (floats in ``float_format``), and the JSON if asked."""
+    table = Table("figure", "value")
+    for k, v in figures.items():
+        table.add_row(k, float_format.format(v) if isinstance(v, float) else str(v))
+    console.print(table)
+    write_json(figures, json_out)

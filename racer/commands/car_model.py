@@ -1,0 +1,95 @@
+"""The simulated car against the world: ``racer calibrate`` (fit it to measured logs) and ``racer limit`` (its
+minimum lap time on a track)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from racer.commands.options import console, json_option, write_json
+
+
+def calibrate(
+    logs: Annotated[
+        list[Path], typer.Argument(help="Measured logs: sim-trace CSVs, RoboMaker logs, plain CSVs, folders.")
+    ],
+    apply: Annotated[
+        str | None, typer.Option("--apply", help="Score this car (NAME|FILE: a preset or a car.json) on LOGS.")
+    ] = None,
+    car: Annotated[
+        str | None, typer.Option("--car", help="Fit on top of this car (NAME|FILE), keeping its design values.")
+    ] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="Write the fitted calibration (car.json) here.")] = None,
+    json_out: Annotated[str | None, json_option("the report")] = None,
+    png: Annotated[Path | None, typer.Option("--png", help="Write trajectories and residuals before/after.")] = None,
+    effects: Annotated[
+        list[str] | None, typer.Option("--effect", help="Candidate effect (repeatable; default: all of them).")
+    ] = None,
+    track: Annotated[str | None, typer.Option(help="Track the logs were driven on (for the picture).")] = None,
+    max_windows: Annotated[int, typer.Option(min=20, help="Replay windows to fit on (and to choose on).")] = 400,
+    timing: Annotated[
+        str, typer.Option(help="Row durations: auto, nominal, logged or logged_previous (see docs/calibration.md).")
+    ] = "auto",
+) -> None:
+    """Fit the car to measured logs (effects, values, error before/after on held-out episodes), or --apply one."""
+    from racer.calibrate import run_calibrate
+
+    # Progress goes to stderr, so that --json - leaves standard output to the JSON alone.
+    progress = Console(stderr=True, highlight=False).print
+    report = run_calibrate(logs, apply, out, png, effects, track, max_windows, progress, timing, base=car)
+    if json_out != "-":
+        table = Table("error (1 s replay)", "before", "after", "cut")
+        for key, unit in (("position_m", "m"), ("heading_deg", "deg"), ("speed_mps", "m/s")):
+            b, a = report["error_before"][key], report["error_after"][key]
+            table.add_row(f"{key.split('_')[0]} ({unit})", f"{b:.3f}", f"{a:.3f}", f"{100 * (1 - a / b):.0f}%")
+        console.print(table)
+        for e in report["effects"]:
+            errors = e.get("stderr") or {}
+            values = ", ".join(
+                f"{k} = {v:.3g}" + (f" ± {errors[k]:.2g}" if k in errors else "") for k, v in e["params"].items()
+            )
+            console.print(f"  {e['name']}: {values}")
+    write_json(report, json_out)
+
+
+def limit(
+    track: Annotated[str, typer.Argument(help="Track name or .npy path (a loop).")],
+    car: Annotated[str, typer.Option(help="Car: a preset name (default) or a car.json from racer calibrate.")] = (
+        "default"
+    ),
+    action_space: Annotated[
+        Path | None, typer.Option("--action-space", help="model_metadata.json: its top speed caps the car's.")
+    ] = None,
+    margin: Annotated[
+        float, typer.Option(min=0.0, max=0.08, help="Metres the car's centre keeps inside DeepRacer's off-track line.")
+    ] = 0.05,
+    png: Annotated[Path | None, typer.Option("--png", help="Write the line coloured by speed over the track.")] = None,
+    json_out: Annotated[str | None, json_option("the report")] = None,
+) -> None:
+    """The minimum lap time of a car on a track: its racing line and speed profile, and a lap driven on it."""
+    from racer.limit import compute_limit, plot_limit, public
+
+    report = compute_limit(track, car, action_space, margin)
+    if png:
+        plot_limit(report, png)
+    if json_out != "-":
+        driven = report["driven_lap_time_s"]
+        ratio = report["driven_over_limit"]
+        console.print(
+            f"{track}, car {car}: limit {report['lap_time_s']:.2f} s from a standing start "
+            f"(flying lap {report['flying_lap_time_s']:.2f} s) on a {report['line_length_m']:.2f} m line, "
+            f"top speed {report['max_speed_mps']:.2f} m/s",
+            highlight=False,
+        )
+        console.print(
+            "driven in the env by a predictive line follower: "
+            + (f"{driven:.2f} s ({100 * (ratio - 1):+.1f} % of the limit)" if driven else report["driven_status"])
+            + (f" at {100 * report['driven_pace']:.0f} % of the profile's speeds" if report["driven_pace"] < 1 else "")
+            + f"; {report['seconds']['total']:.1f} s in all",
+            highlight=False,
+        )
+    write_json(public(report), json_out)

@@ -1,0 +1,80 @@
+"""``racer eval`` (a checkpoint driven from several starts) and ``racer plot`` (a run's PNGs)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from racer.commands.options import Endpoint, JsonOut, Store, console, write_json
+
+
+def evaluate(
+    run_id: Annotated[str, typer.Option("--run-id", help="Run id.")],
+    store: Store = ".",
+    s3_endpoint: Endpoint = None,
+    checkpoint: Annotated[str, typer.Option(help="best, latest or a version number.")] = "best",
+    track: Annotated[list[str] | None, typer.Option(help="Track(s) to drive (default: the run's).")] = None,
+    episodes: Annotated[int, typer.Option(min=1, help="Start positions per direction and track.")] = 6,
+    both_directions: Annotated[bool, typer.Option("--both-directions/--one-direction")] = True,
+    action_noise: Annotated[float, typer.Option(min=0, max=1, help="Action noise fraction.")] = 0.1,
+    json_out: JsonOut = None,
+    sim_trace: Annotated[Path | None, typer.Option("--sim-trace", help="Write a DeepRacer sim-trace CSV.")] = None,
+    video: Annotated[Path | None, typer.Option("--video", help="Write an MP4 of the first trial.")] = None,
+    car_calibration: Annotated[
+        str | None,
+        typer.Option("--car", "--car-calibration", help="Drive this car (a preset or a car.json), not the run's."),
+    ] = None,
+) -> None:
+    """Evaluate a checkpoint of a run from a store: a table per trial, and the JSON summary."""
+    from racer.evaluate import run_eval
+
+    record = run_eval(
+        run_id,
+        store,
+        s3_endpoint,
+        checkpoint,
+        track or [],
+        episodes,
+        both_directions,
+        action_noise,
+        sim_trace,
+        video,
+        car_calibration,
+    )
+    if json_out != "-":
+        console.print(_trials_table(record["trials"]))
+        best = "-" if record["best_lap_s"] is None else f"{record['best_lap_s']:.2f} s"
+        console.print(
+            f"version {record['version']}: completion {100 * record['completion_rate']:.0f}%, "
+            f"mean progress {record['mean_progress']:.1f}%, best lap {best}, score {record['score']:.1f}"
+        )
+    summary = {k: v for k, v in record.items() if k != "trials"}
+    summary["trials"] = [{k: v for k, v in t.items() if k != "trajectory"} for t in record["trials"]]
+    write_json(summary, json_out)
+
+
+def _trials_table(trials: list[dict]) -> Table:
+    table = Table("track", "direction", "start", "status", "progress %", "steps", "lap s")
+    for t in trials:
+        lap = "-" if t["lap_time_s"] is None else f"{t['lap_time_s']:.2f}"
+        direction = "reverse" if t["reverse"] else "forward"
+        status = (t["status"], f"{t['progress']:.1f}", str(t["steps"]), lap)
+        table.add_row(t["track"], direction, str(t["start_index"]), *status)
+    return table
+
+
+def plot(
+    run_id: Annotated[str, typer.Argument(help="Run id.")],
+    store: Store = ".",
+    s3_endpoint: Endpoint = None,
+    out: Annotated[Path, typer.Option(help="Folder for training.png and trajectories.png.")] = Path("."),
+) -> None:
+    """PNGs of a run: training curves with evaluation completion, and evaluation trajectories coloured by speed."""
+    from model_store import RunStore, open_store
+    from racer.plots import plot_run
+
+    for p in plot_run(run_id, RunStore(open_store(store, s3_endpoint)), out):
+        console.print(f"wrote {p}")

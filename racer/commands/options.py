@@ -1,0 +1,76 @@
+"""What the commands share: the console, ``--json`` output, and the options that several commands take."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+from common.errors import OptionError
+
+console = Console()
+"""Standard output of every command (progress and messages that must not mix with ``--json -`` go to stderr)."""
+
+
+def write_json(data: object, target: str | None) -> None:
+    """Write machine-readable output to a file, or to standard output for ``-``."""
+    if target is None:
+        return
+    text = json.dumps(data, indent=2)
+    if target == "-":
+        sys.stdout.write(text + "\n")
+    else:
+        Path(target).write_text(text + "\n")
+
+
+def int_list(text: str, option: str) -> list[int]:
+    """``0,1,2`` given to ``option`` as integers, or an OptionError naming the option and what was given."""
+    try:
+        return [int(s) for s in text.split(",")]
+    except ValueError:
+        raise OptionError(f"{option} must be comma-separated integers (got {text!r})") from None
+
+
+Store = Annotated[
+    str, typer.Option("--store", envvar="RACER_STORE", help="s3://bucket/prefix or a directory (runs go in runs/).")
+]
+Endpoint = Annotated[
+    str | None, typer.Option("--s3-endpoint", envvar="AWS_ENDPOINT_URL", help="S3 endpoint URL (MinIO, moto).")
+]
+RunId = Annotated[str, typer.Option("--run-id", envvar="RACER_RUN_ID", help="Run id.")]
+Redis = Annotated[str, typer.Option("--redis", envvar="RACER_REDIS_URL", help="redis://[:password@]host:port/db")]
+Outage = Annotated[
+    str,
+    typer.Option(
+        "--outage-timeout",
+        envvar="RACER_OUTAGE_TIMEOUT",
+        help="Ride out a Redis or store outage this long before exiting (90s, 10m).",
+    ),
+]
+Car = Annotated[
+    str | None,
+    typer.Option(
+        "--car", "--car-calibration", help="The car to simulate: a preset (default) or a car.json (racer calibrate)."
+    ),
+]
+Track = Annotated[str, typer.Option(help="Track name or .npy path.")]
+RewardFn = Annotated[Path | None, typer.Option("--reward-fn", help="DeepRacer reward function .py.")]
+ActionSpace = Annotated[Path | None, typer.Option("--action-space", help="DeepRacer model_metadata.json.")]
+Hyperparams = Annotated[Path | None, typer.Option("--hyperparams", help="DeepRacer hyperparameters.json.")]
+FromDrfc = Annotated[
+    Path | None,
+    typer.Option("--from-drfc", help="A DeepRacer-for-Cloud folder: custom_files/ and run.env (options win)."),
+]
+Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")]
+
+
+def json_option(what: str = "the result") -> object:
+    """The ``--json F`` option (``-`` = standard output), saying what is written."""
+    return typer.Option("--json", help=f"Write {what} as JSON to F (- = stdout).")
+
+
+JsonOut = Annotated[str | None, json_option()]

@@ -1,0 +1,173 @@
+"""The role processes alone, for docker compose and workers on other machines: ``racer trainer``, ``racer
+worker`` and ``racer evaluator``. ``racer train`` starts the same commands (``racer/launcher.py``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from racer.commands.options import Endpoint, Outage, Redis, RunId, Store, Verbose, console, json_option, write_json
+
+
+def trainer(
+    redis_url: Redis,
+    store: Store = ".",
+    s3_endpoint: Endpoint = None,
+    config: Annotated[Path | None, typer.Option(help="RunConfig JSON (written by racer train).")] = None,
+    files: Annotated[Path | None, typer.Option(help="Folder with the run's files (written by racer train).")] = None,
+    run_id: Annotated[str | None, typer.Option("--run-id", envvar="RACER_RUN_ID", help="Run id.")] = None,
+    track: Annotated[str, typer.Option(envvar="RACER_TRACK", help="Track name or .npy path.")] = "reinvent_base",
+    reward_fn: Annotated[Path | None, typer.Option("--reward-fn", envvar="RACER_REWARD_FN")] = None,
+    action_space: Annotated[Path | None, typer.Option("--action-space", envvar="RACER_ACTION_SPACE")] = None,
+    hyperparams: Annotated[Path | None, typer.Option("--hyperparams", envvar="RACER_HYPERPARAMS")] = None,
+    resume: Annotated[bool, typer.Option("--resume", envvar="RACER_RESUME")] = False,
+    time_limit: Annotated[str | None, typer.Option("--time-limit", envvar="RACER_TIME_LIMIT")] = None,
+    threads: Annotated[int, typer.Option(min=1, envvar="RACER_TRAINER_THREADS", help="PyTorch threads.")] = 1,
+    precision: Annotated[
+        str,
+        typer.Option(envvar="RACER_PRECISION", help="PPO update arithmetic: auto (bf16 where native), fp32, bf16."),
+    ] = "auto",
+    outage_timeout: Outage = "10m",
+    verbose: Verbose = False,
+) -> None:
+    """Run the PPO trainer role alone (for docker compose and multi-machine runs)."""
+    from common.config import check_precision
+    from model_store import RunStore, open_store
+    from racer.lifecycle import setup_logging, stop_event_on_signals
+    from racer.runconfig import NewRun, parse_duration, trainer_role_run
+    from trainer.process import TrainerOptions, run_trainer
+
+    setup_logging(verbose)
+    check_precision(precision)  # bad values fail before any file is written
+    limit = parse_duration(time_limit) if time_limit else None
+    outage_s = parse_duration(outage_timeout)
+    runs = RunStore(open_store(store, s3_endpoint))
+    new = NewRun(
+        track=track,
+        reward_fn=str(reward_fn) if reward_fn else None,
+        action_space=str(action_space) if action_space else None,
+        hyperparams=str(hyperparams) if hyperparams else None,
+    )
+    run, run_files, resume = trainer_role_run(runs, run_id, config, files, resume, new)
+    opts = TrainerOptions(
+        redis_url, store, s3_endpoint, resume, limit, threads, run_files, outage_s=outage_s, precision=precision
+    )
+    run_trainer(run, opts, stop_event_on_signals())
+
+
+def worker(
+    redis_url: Redis,
+    run_id: RunId,
+    store: Store = ".",
+    s3_endpoint: Endpoint = None,
+    index: Annotated[int | None, typer.Option(envvar="RACER_WORKER_INDEX", help="Worker index (seed, track).")] = None,
+    worker_id: Annotated[str, typer.Option("--worker-id", envvar="RACER_WORKER_ID")] = "",
+    outage_timeout: Outage = "10m",
+    simtrace_log: Annotated[
+        bool,
+        typer.Option(
+            "--simtrace-log/--no-simtrace-log",
+            envvar="RACER_SIMTRACE_LOG",
+            help="Also log every step's SIM_TRACE_LOG line, as DeepRacer's RoboMaker log does (the CSVs are always "
+            "written).",
+        ),
+    ] = False,
+    verbose: Verbose = False,
+) -> None:
+    """Run one rollout worker (for docker compose and workers on other machines)."""
+    import logging
+
+    from common.simtrace import LOG as SIMTRACE_LOG
+    from racer.lifecycle import setup_logging, stop_event_on_signals
+    from racer.runconfig import parse_duration
+    from rollout_worker.worker import WorkerOptions, run_worker
+
+    setup_logging(verbose)
+    # One line per step (15 a second per worker) fills a log fast; the sim-trace CSVs in the store hold the same rows.
+    SIMTRACE_LOG.setLevel(logging.INFO if simtrace_log else logging.WARNING)
+    # Without --index, the worker takes the next free index from Redis (scaled compose workers: 0, 1, …).
+    opts = WorkerOptions(
+        run_id, redis_url, store, s3_endpoint, index, worker_id, outage_s=parse_duration(outage_timeout)
+    )
+    run_worker(opts, stop_event_on_signals())
+
+
+def evaluator(
+    redis_url: Redis,
+    run_id: RunId,
+    store: Store = ".",
+    s3_endpoint: Endpoint = None,
+    every: Annotated[int, typer.Option(min=1, envvar="RACER_EVAL_EVERY", help="Evaluate every N-th version.")] = 1,
+    episodes: Annotated[int, typer.Option(min=1, envvar="RACER_EVAL_EPISODES", help="Starts per direction.")] = 6,
+    action_noise: Annotated[float, typer.Option(min=0, max=1, help="Action noise fraction.")] = 0.1,
+    track: Annotated[list[str] | None, typer.Option(help="Evaluate on these tracks (default: the run's).")] = None,
+    forward_only: Annotated[
+        bool, typer.Option("--forward-only", help="Drive the track's own direction only, as a DeepRacer race.")
+    ] = False,
+    nice: Annotated[
+        int, typer.Option(min=0, max=19, envvar="RACER_EVAL_NICE", help="Lower CPU priority (Unix nice increment).")
+    ] = 0,
+    outage_timeout: Outage = "10m",
+    verbose: Verbose = False,
+) -> None:
+    """Run the evaluator role: robust evaluation of each new checkpoint, and the best pointer."""
+    import os
+
+    if nice:
+        os.nice(nice)  # first, so that even importing torch yields the CPU to the trainer and the workers
+    from racer.lifecycle import setup_logging, stop_event_on_signals
+    from racer.runconfig import parse_duration
+    from trainer.evaluator import EvalSettings, EvaluatorOptions, run_evaluator
+
+    setup_logging(verbose)
+    settings = EvalSettings(
+        episodes=episodes, action_noise=action_noise, tracks=track or [], both_directions=not forward_only
+    )
+    opts = EvaluatorOptions(
+        run_id, redis_url, store, s3_endpoint, every, settings, outage_s=parse_duration(outage_timeout)
+    )
+    run_evaluator(opts, stop_event_on_signals())
+
+
+def status(
+    redis_url: Redis,
+    run_id: RunId,
+    json_out: Annotated[str | None, json_option("the run's state")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing; only the exit code.")] = False,
+) -> None:
+    """The state of a run from its Redis: trainer, live workers, newest policy, last evaluation. Exits 1 when no
+    trainer is running (for health checks: docker compose uses it)."""
+    from common.bus import Bus
+    from common.redis_util import connect_checked
+
+    state = Bus(connect_checked(redis_url), run_id).snapshot()
+    trainer = state["trainer"]
+    if not quiet and json_out != "-":
+        console.print(_status_lines(state), highlight=False, soft_wrap=True)
+    if not quiet:
+        write_json(state, json_out)
+    if trainer is None:
+        raise typer.Exit(1)
+
+
+def _status_lines(state: dict) -> str:
+    trainer, policy, last = state["trainer"], state["policy"], state["last_evaluation"]
+    lines = [f"run {state['run_id']}"]
+    if trainer is None:
+        lines.append("trainer: not running (no status in the last 30 s)")
+    else:
+        lines.append(
+            f"trainer: iteration {trainer.get('iteration')}, {trainer.get('env_steps', 0):,} env steps, "
+            f"{trainer.get('steps_per_s', 0.0):.0f} steps/s" + (" (PPO update running)" if state["training"] else "")
+        )
+    lines.append(f"policy: v{policy['version']}" if policy else "policy: none published")
+    lines.append(f"workers: {len(state['workers'])} alive")
+    for w in state["workers"]:
+        lines.append(f"  {w['worker_id']}: v{w['policy_version']}, {w['env_steps']:,} steps on {w['track']}")
+    if last:
+        lap = "-" if last["best_lap_s"] is None else f"{last['best_lap_s']:.2f} s"
+        lines.append(f"last evaluation: v{last['version']}, {100 * last['completion_rate']:.0f}% laps, best lap {lap}")
+    lines.append(f"segments queued: {state['segments_queued']}")
+    return "\n".join(lines)

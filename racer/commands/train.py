@@ -1,0 +1,132 @@
+"""``racer train`` (the whole loop on one machine) and ``racer check`` (the user's files, checked as train would)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from common.errors import OptionError, UserError
+from racer.commands.options import (
+    ActionSpace,
+    Car,
+    Endpoint,
+    FromDrfc,
+    Hyperparams,
+    RewardFn,
+    Store,
+    console,
+)
+
+TrackOpt = Annotated[str | None, typer.Option(help="Track name or .npy path [default: reinvent_base].")]
+
+
+def train(
+    track: TrackOpt = None,
+    workers: Annotated[int | None, typer.Option(min=1, help="Rollout worker processes [default: 2].")] = None,
+    time_limit: Annotated[str | None, typer.Option("--time-limit", help="Stop after this long (90s, 5m, 2h).")] = None,
+    run_id: Annotated[str | None, typer.Option("--run-id", help="Run id (default: run-<UTC time>).")] = None,
+    store: Store = ".",
+    s3_endpoint: Endpoint = None,
+    redis_url: Annotated[str | None, typer.Option("--redis", help="Use this Redis instead of an embedded one.")] = None,
+    reward_fn: RewardFn = None,
+    action_space: ActionSpace = None,
+    hyperparams: Hyperparams = None,
+    randomization: Annotated[Path | None, typer.Option(help="JSON of domain randomization settings.")] = None,
+    worker_track: Annotated[list[str] | None, typer.Option("--worker-track", help="Per-worker tracks.")] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="Continue the run from its latest checkpoint.")] = False,
+    seed: Annotated[int, typer.Option(help="Base random seed.")] = 0,
+    car_calibration: Car = None,
+    max_policy_lag: Annotated[int, typer.Option(min=0, help="Drop segments this many versions old.")] = 0,
+    segment_steps: Annotated[int, typer.Option(min=1, help="Env steps per segment sent to Redis.")] = 32,
+    evaluate: Annotated[bool, typer.Option("--eval/--no-eval", help="Run the evaluator beside the trainer.")] = True,
+    eval_every: Annotated[int, typer.Option(min=1, help="Evaluate every N-th checkpoint.")] = 1,
+    eval_episodes: Annotated[int, typer.Option(min=1, help="Evaluation starts per direction.")] = 3,
+    eval_track: Annotated[list[str] | None, typer.Option("--eval-track", help="Evaluate on these tracks.")] = None,
+    stop_when_robust: Annotated[
+        int | None, typer.Option(min=1, help="Stop after K consecutive checkpoints complete every evaluation lap.")
+    ] = None,
+    precision: Annotated[
+        str, typer.Option(help="The trainer's PPO update arithmetic: auto (bf16 where native), fp32, bf16.")
+    ] = "auto",
+    from_drfc: FromDrfc = None,
+    pretrained: Annotated[
+        str | None,
+        typer.Option(help="Start from another run's weights in the store: RUN[:best|latest|N] (DRfC pretrained)."),
+    ] = None,
+) -> None:
+    """Train: an embedded Redis (unless --redis), the PPO trainer and N rollout workers on this machine."""
+    from common.config import check_precision
+    from model_store import RunStore, open_store
+    from racer.check import drfc_lines, merge_inputs
+    from racer.launcher import TrainOptions, new_run_id, run_summary, run_train
+    from racer.runconfig import NewRun, open_run, parse_duration
+
+    limit = parse_duration(time_limit) if time_limit else None
+    check_precision(precision)
+    inputs = merge_inputs(track, reward_fn, action_space, hyperparams, from_drfc)
+    workers = workers or inputs.workers or 2
+    eval_episodes = inputs.eval_episodes if eval_episodes == 3 and inputs.eval_episodes else eval_episodes
+    if resume and not run_id:
+        raise OptionError("--resume needs --run-id")
+    rid = run_id or inputs.run_id or new_run_id()
+    new = NewRun(
+        track=inputs.track,
+        reward_fn=inputs.reward_fn,
+        action_space=inputs.action_space,
+        hyperparams=inputs.hyperparams,
+        randomization=str(randomization) if randomization else None,
+        randomization_update=inputs.randomization,
+        worker_tracks=worker_track or [],
+        seed=seed,
+        car=str(car_calibration) if car_calibration else None,
+        max_policy_lag=max_policy_lag,
+        segment_steps=segment_steps,
+        pretrained=pretrained or inputs.pretrained,
+    )
+    runs = RunStore(open_store(store, s3_endpoint))
+    run, files, notes = open_run(runs, rid, None if resume else new)
+    for line in notes + ([] if resume else drfc_lines(inputs.drfc)):
+        console.print(line, highlight=False, soft_wrap=True)
+    opts = TrainOptions(
+        workers,
+        redis_url,
+        store,
+        s3_endpoint,
+        limit,
+        resume,
+        evaluate=evaluate,
+        eval_every=eval_every,
+        eval_episodes=eval_episodes,
+        stop_when_robust=stop_when_robust,
+        eval_tracks=eval_track or [],
+        precision=precision,
+    )
+    console.print(f"run [bold]{rid}[/]: {workers} workers on {run.env.track}, store {store}")
+    status = run_train(run, opts, files, console)
+    console.print(
+        f"done: {status.get('iteration', 0)} iterations, {status.get('env_steps', 0):,} env steps "
+        f"in {status.get('trained_s', 0.0):.0f} s",
+        highlight=False,
+    )
+    try:
+        for line in run_summary(rid, runs, store, s3_endpoint):
+            console.print(line, highlight=False, soft_wrap=True)
+    except UserError as exc:  # the run is trained and saved; only its description failed
+        console.print(f"[yellow]could not read the run's summary: {exc}", highlight=False)
+
+
+def check(
+    reward_fn: RewardFn = None,
+    action_space: ActionSpace = None,
+    hyperparams: Hyperparams = None,
+    track: TrackOpt = None,
+    from_drfc: FromDrfc = None,
+) -> None:
+    """Validate DeepRacer files exactly as racer train would, start nothing, and say what racer does with each."""
+    from racer.check import check_files, merge_inputs
+
+    for line in check_files(merge_inputs(track, reward_fn, action_space, hyperparams, from_drfc)):
+        console.print(line, highlight=False, soft_wrap=True)
+    console.print("ok: racer train would accept these files", highlight=False)
