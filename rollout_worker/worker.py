@@ -24,6 +24,7 @@ import torch
 from common.bus import Bus
 from common.config import EnvConfig, RunConfig
 from common.framestack import FrameStack
+from common.keys import check_run_id
 from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
 from common.redis_util import connect_checked, redact
@@ -77,6 +78,7 @@ class RolloutWorker:
     def __init__(self, opts: WorkerOptions, stop: threading.Event | None = None) -> None:
         self.opts = opts
         self.stop = stop or threading.Event()
+        check_run_id(opts.run_id)  # a bad run id fails before any connection is tried
         self.redis = connect_checked(opts.redis_url)
         self.bus = Bus(self.redis, opts.run_id)
         self.runs = RunStore(open_store(opts.store, opts.s3_endpoint))
