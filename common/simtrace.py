@@ -4,7 +4,8 @@ The community's ``deepracer-utils`` (``deepracer.logs``) reads a run folder with
 ``DeepRacerLog("<store>/runs/<run_id>").load()`` exactly as it reads a DeepRacer-for-Cloud (DRfC) model folder,
 and with ``S3FileHandler(bucket, prefix + "runs/<run_id>")`` when the store is a bucket.
 
-Layout (DRfC's multi-worker model folder, ``LogFolderType.DRFC_MODEL_MULTIPLE_WORKERS``)::
+Layout (DRfC's multi-worker model folder, ``LogFolderType.DRFC_MODEL_MULTIPLE_WORKERS``; the keys are spelled by
+``model_store/runs.py: simtrace_key``, which owns the run's layout in the store)::
 
     runs/{run_id}/{k}/training-simtrace/{N}-iteration.csv                 worker k, policy version N
     runs/{run_id}/evaluation-{YYYYMMDDHHMMSS}/evaluation-simtrace/0-iteration.csv   one evaluation
@@ -41,10 +42,9 @@ from __future__ import annotations
 
 import logging
 import math
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
@@ -70,10 +70,6 @@ COLUMNS: list[str] = [
     "pause_duration",
 ]
 """DeepRacer's sim-trace header (the simapp's StepMetrics, without the 2026 obstacle_crash_counter/wall_clock)."""
-
-SimTraceKind = Literal["training", "evaluation"]
-_STAMP = re.compile(r"^\d{14}$")
-_WORKER = re.compile(r"^\d+$")
 
 
 def _f(value: float) -> str:
@@ -294,37 +290,3 @@ class SimTraceRecorder:
         self.open = []
         self._pose = None
         self._last = None
-
-
-def evaluation_stamp(epoch_s: float) -> str:
-    """DRfC's name for an evaluation, its UTC start time as ``YYYYMMDDHHMMSS``."""
-    import datetime as dt
-
-    return dt.datetime.fromtimestamp(epoch_s, dt.UTC).strftime("%Y%m%d%H%M%S")
-
-
-def simtrace_key(
-    run_id: str, kind: SimTraceKind, iteration: int, worker: str | int = 0, *, evaluation: str | None = None
-) -> str:
-    """The store key of a sim-trace CSV in the run folder (layout in the module docstring).
-
-    ``training``: ``runs/{run_id}/{worker}/training-simtrace/{iteration}-iteration.csv``, ``worker`` the worker
-    index. ``evaluation``: ``runs/{run_id}/evaluation-{evaluation}/evaluation-simtrace/{iteration}-iteration.csv``,
-    ``evaluation`` a 14-digit UTC stamp from :func:`evaluation_stamp` (DeepRacer evaluates with one worker, so
-    ``worker`` is not part of it; deepracer-utils reads iteration 0 only).
-    """
-    if not run_id or "/" in run_id or run_id in (".", ".."):
-        raise ValueError(f"invalid run id {run_id!r}")
-    if isinstance(iteration, bool) or not isinstance(iteration, int | np.integer) or iteration < 0:
-        raise ValueError(f"invalid iteration {iteration!r}: an int >= 0")
-    if kind == "training":
-        if evaluation is not None:
-            raise ValueError("a training sim-trace has no evaluation stamp")
-        if isinstance(worker, bool) or not _WORKER.match(str(worker)):
-            raise ValueError(f"invalid worker {worker!r}: a worker index >= 0")
-        return f"runs/{run_id}/{int(worker)}/training-simtrace/{int(iteration)}-iteration.csv"
-    if kind == "evaluation":
-        if evaluation is None or not _STAMP.match(evaluation):
-            raise ValueError(f"invalid evaluation stamp {evaluation!r}: YYYYMMDDHHMMSS (see evaluation_stamp)")
-        return f"runs/{run_id}/evaluation-{evaluation}/evaluation-simtrace/{int(iteration)}-iteration.csv"
-    raise ValueError(f"invalid sim-trace kind {kind!r}: 'training' or 'evaluation'")

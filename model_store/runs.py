@@ -23,8 +23,10 @@ from __future__ import annotations
 
 import json
 import logging
+import numbers
 import re
 import time
+from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import ValidationError
@@ -71,6 +73,50 @@ def _check_pointer(name: str) -> str:
 def run_prefix(run_id: str) -> str:
     """``runs/{run_id}/``."""
     return f"runs/{check_run_id(run_id)}/"
+
+
+SimTraceKind = Literal["training", "evaluation"]
+_STAMP = re.compile(r"^\d{14}$")
+_WORKER = re.compile(r"^\d+$")
+
+
+def evaluation_stamp(epoch_s: float) -> str:
+    """DRfC's name for an evaluation, its UTC start time as ``YYYYMMDDHHMMSS``."""
+    import datetime as dt
+
+    return dt.datetime.fromtimestamp(epoch_s, dt.UTC).strftime("%Y%m%d%H%M%S")
+
+
+def simtrace_key(
+    run_id: str, kind: SimTraceKind, iteration: int, worker: str | int = 0, *, evaluation: str | None = None
+) -> str:
+    """The store key of a sim-trace CSV in the run folder (the layout deepracer-utils reads: ``common/simtrace.py``).
+
+    ``training``: ``runs/{run_id}/{worker}/training-simtrace/{iteration}-iteration.csv``, ``worker`` the worker
+    index. ``evaluation``: ``runs/{run_id}/evaluation-{evaluation}/evaluation-simtrace/{iteration}-iteration.csv``,
+    ``evaluation`` a 14-digit UTC stamp from :func:`evaluation_stamp` (DeepRacer evaluates with one worker, so
+    ``worker`` is not part of it; deepracer-utils reads iteration 0 only).
+    """
+    if isinstance(iteration, bool) or not isinstance(iteration, numbers.Integral) or iteration < 0:
+        raise ValueError(f"invalid iteration {iteration!r}: an int >= 0")
+    if kind == "training":
+        if evaluation is not None:
+            raise ValueError("a training sim-trace has no evaluation stamp")
+        if isinstance(worker, bool) or not _WORKER.match(str(worker)):
+            raise ValueError(f"invalid worker {worker!r}: a worker index >= 0")
+        return f"{run_prefix(run_id)}{int(worker)}/training-simtrace/{int(iteration)}-iteration.csv"
+    if kind == "evaluation":
+        if evaluation is None or not _STAMP.match(evaluation):
+            raise ValueError(f"invalid evaluation stamp {evaluation!r}: YYYYMMDDHHMMSS (see evaluation_stamp)")
+        return f"{run_prefix(run_id)}evaluation-{evaluation}/evaluation-simtrace/{int(iteration)}-iteration.csv"
+    raise ValueError(f"invalid sim-trace kind {kind!r}: 'training' or 'evaluation'")
+
+
+def local_run_dir(store: str, run_id: str) -> Path:
+    """The run's folder on this machine, for what is written as local files (role logs, TensorBoard): the run's
+    folder in a directory store, ``./runs/<run_id>`` for a bucket."""
+    root = Path(store) if "://" not in store else Path(".")
+    return root / run_prefix(run_id)
 
 
 def checkpoint_key(run_id: str, version: int) -> str:

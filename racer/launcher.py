@@ -18,7 +18,7 @@ from common.bus import Bus
 from common.config import RunConfig
 from common.redis_util import connect, connect_checked, redact
 from model_store import LocalStore, RunStore, open_store
-from model_store.runs import run_prefix
+from model_store.runs import local_run_dir, run_prefix
 from racer.embedded_redis import EmbeddedRedis
 from racer.lifecycle import USER_ERROR_EXIT, RoleFailed, spawn_role, stop_all
 
@@ -110,7 +110,7 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
         config_path.write_text(run.model_dump_json())
         for name, data in run_files.items():
             (work / name).write_bytes(data)
-        logs = Path(opts.store if "://" not in opts.store else ".") / "runs" / run.run_id / "logs"
+        logs = local_run_dir(opts.store, run.run_id) / "logs"
         logs.mkdir(parents=True, exist_ok=True)
         common = ["--redis", redis_url, "--store", opts.store]
         common += ["--s3-endpoint", opts.s3_endpoint] if opts.s3_endpoint else []

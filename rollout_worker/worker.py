@@ -29,9 +29,10 @@ from common.policy import ActorCritic, action_space_spec, build_policy, checkpoi
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
 from common.redis_util import connect_checked, redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
-from common.simtrace import SimTraceRecorder, simtrace_key
+from common.simtrace import SimTraceRecorder
 from model_store import RunStore, StoreError, is_transient, open_store
 from model_store.localize import localize_env
+from model_store.runs import simtrace_key
 from sim.env import RacerEnv
 
 log = logging.getLogger("racer.worker")

@@ -148,8 +148,9 @@ def test_evaluation_sim_trace_is_read_by_deepracer_utils(tmp_path):
     from deepracer.logs import DeepRacerLog
 
     from common.policy import action_space_spec, build_policy, checkpoint_to_bytes
-    from common.simtrace import SimTraceRecorder, evaluation_stamp, simtrace_key
+    from common.simtrace import SimTraceRecorder
     from model_store.localize import localize_env
+    from model_store.runs import evaluation_stamp, simtrace_key
     from sim.env import RacerEnv
 
     run, files = build_run("evtrace", track="reinvent_base")

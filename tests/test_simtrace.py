@@ -16,12 +16,11 @@ from common.simtrace import (
     COLUMNS,
     SimTraceRecorder,
     SimTraceWriter,
-    evaluation_stamp,
     row_from_step,
-    simtrace_key,
     simtrace_row,
 )
 from model_store import open_store
+from model_store.runs import evaluation_stamp, simtrace_key
 from sim.env import RacerEnv
 from sim.track import load_track
 from tests.conftest import S3_BUCKET

@@ -33,10 +33,10 @@ from common.policy import ActorCritic, load_policy
 from common.protocol import EvaluationSummary, PolicyVersion, ProtocolError
 from common.redis_util import connect_checked, redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
-from common.simtrace import SimTraceRecorder, evaluation_stamp, simtrace_key
+from common.simtrace import SimTraceRecorder
 from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
-from model_store.runs import evaluation_name
+from model_store.runs import evaluation_name, evaluation_stamp, simtrace_key
 from sim.env import RacerEnv
 
 log = logging.getLogger("racer.evaluator")

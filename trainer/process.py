@@ -45,7 +45,7 @@ from common.redis_util import connect_checked, redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
 from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
-from model_store.runs import METRICS_FILE, checkpoint_key, evaluation_name
+from model_store.runs import METRICS_FILE, checkpoint_key, evaluation_name, local_run_dir
 from sim.env import RacerEnv
 from trainer.ppo import PPOBatch, compute_gae, scheduled, update
 
@@ -693,8 +693,7 @@ def _summary_writer(store: str, run_id: str):
     """A TensorBoard writer in the run's folder (TensorBoard writes local files: ./runs/<id>/ for an S3 store)."""
     from torch.utils.tensorboard import SummaryWriter
 
-    root = Path(store) if "://" not in store else Path(".")
-    return SummaryWriter(log_dir=str(root / "runs" / run_id / "tensorboard"))
+    return SummaryWriter(log_dir=str(local_run_dir(store, run_id) / "tensorboard"))
 
 
 def make_batch(segments: list[Segment], gamma: float, lam: float) -> PPOBatch:
