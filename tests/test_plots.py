@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from common.errors import UserError
 from model_store import LocalStore, ObjectStore, RunStore, open_store
 from racer.plots import (
     DPI,
@@ -131,9 +132,9 @@ def test_plot_training_without_evaluations(tmp_path, run_id):
 
 def test_plot_training_without_metrics_names_the_run(tmp_path, run_id):
     runs = write_run(tmp_path / "store", run_id, metrics=False)
-    with pytest.raises(ValueError, match=run_id):
+    with pytest.raises(UserError, match=run_id):
         plot_training(run_id, runs, tmp_path / "training.png")
-    with pytest.raises(ValueError, match="no-such-run"):
+    with pytest.raises(UserError, match="no-such-run"):
         plot_training("no-such-run", runs, tmp_path / "training.png")
     assert not (tmp_path / "training.png").exists()
 
@@ -164,13 +165,13 @@ def test_plot_trajectories_picks_the_version(tmp_path, run_id):
     # No best.json pointer yet: "best" is the best-scored evaluation, "latest" the newest.
     c = read_png(plot_trajectories(run_id, runs, tmp_path / "best.png", version="best"), TRAJECTORY_FIGSIZE)
     assert np.array_equal(b, c)
-    with pytest.raises(ValueError, match="checkpoint 5"):
+    with pytest.raises(UserError, match="checkpoint 5"):
         plot_trajectories(run_id, runs, tmp_path / "v5.png", version=5)
 
 
 def test_plot_trajectories_without_evaluations_names_the_run(tmp_path, run_id):
     runs = write_run(tmp_path / "store", run_id, evaluations=False)
-    with pytest.raises(ValueError, match=run_id):
+    with pytest.raises(UserError, match=run_id):
         plot_trajectories(run_id, runs, tmp_path / "trajectories.png")
 
 
