@@ -373,7 +373,9 @@ class RunStore:
         flags = {name: (self.pointer(run_id, name) or {}).get("version") for name in POINTERS}
         out = []
         for version in sorted(metas & sizes.keys()):
-            meta = self._read_json(checkpoint_meta_key(run_id, version))
+            meta = self._read_json_or_none(checkpoint_meta_key(run_id, version))
+            if meta is None:  # pruned since the listing: a live trainer prunes as it checkpoints
+                continue
             # The listed size is the truth on disk; the flags are computed, never stored.
             meta.update(run_id=run_id, version=version, size_bytes=sizes[version])
             meta.update({name: flags[name] == version for name in POINTERS})

@@ -12,6 +12,12 @@ from racer.embedded_redis import EmbeddedRedis, free_port
 S3_BUCKET = "racer-it"
 
 
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers", "slow(reason): takes minutes of real time (real processes, timed phases); it stays in the suite"
+    )
+
+
 @pytest.fixture(scope="session")
 def redis_server():
     """A redis-server started for this test session on a free port; stopped at the end."""

@@ -239,6 +239,21 @@ def test_set_pointer_best_sets_the_flag(store):
         runs.set_pointer("run1", "worst", 2)
 
 
+def test_a_checkpoint_pruned_between_listing_and_reading_is_left_out(store):
+    # racer models ls on a live run: the trainer prunes a checkpoint after the listing saw it.
+    runs = RunStore(store)
+    _save(runs, "run1", [1, 2, 3])
+    listing = store.list
+
+    def list_then_prune(prefix):
+        infos = list(listing(prefix))
+        store.delete("runs/run1/checkpoints/000000001.json")
+        return infos
+
+    store.list = list_then_prune
+    assert [c["version"] for c in runs.list_checkpoints("run1")] == [2, 3]
+
+
 def test_half_written_checkpoints_are_not_listed_and_latest_stays_on_the_last_whole_one(store):
     runs = RunStore(store)
     _save(runs, "run1", [1, 2, 3])

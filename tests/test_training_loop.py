@@ -97,6 +97,19 @@ def test_stale_and_malformed_segments_are_dropped_and_counted(redis_url, run_id,
     worker.close()
 
 
+def test_a_segment_that_reaches_the_stream_twice_is_counted_once(redis_url, run_id, tmp_path, hp_file):
+    """A push cut off mid-way is retried while TCP may still deliver the first copy: the second is dropped."""
+    trainer, worker = start(run_id, redis_url, str(tmp_path / "store"), hp_file)
+    seg = worker.collect()
+    worker.push(seg)
+    worker.push(seg)  # the same bytes again, as a late first copy would arrive
+    worker.push(worker.collect())
+    assert trainer.read(block_ms=500) == 2
+    assert trainer.stats.dropped == {"duplicate": 1}
+    assert trainer.stats.by_worker == {worker.worker_id: 2} and trainer.stats.env_steps == 32
+    worker.close()
+
+
 def test_resume_restores_version_steps_and_optimizer(redis_url, run_id, tmp_path, hp_file):
     store = str(tmp_path / "store")
     trainer, worker = start(run_id, redis_url, store, hp_file)

@@ -80,6 +80,10 @@ class TrainerOptions:
     natively, see ``common.policy.bf16_is_fast``). Checkpoints are float32 either way."""
 
 
+SEEN_SEGMENTS = 4096
+"""Segments remembered for dropping duplicates: minutes of segments, longer than TCP keeps retrying a lost one."""
+
+
 @dataclass
 class Stats:
     """What the trainer has seen, for the status line and the metrics."""
@@ -200,6 +204,8 @@ class Trainer:
         self.stats = Stats()
         self.buffer: list[Segment] = []
         self.last_id = "0-0"
+        self._seen: deque[tuple[str, float]] = deque(maxlen=SEEN_SEGMENTS)
+        """(worker id, created) of the segments read last, to drop a second copy of one (see ``_accept``)."""
         self.metrics: list[dict] = []
         self.stability = Stability()
         self.watch = CollapseWatch(self.hp.collapse_min_best, self.hp.collapse_drop, self.hp.collapse_patience)
@@ -392,6 +398,14 @@ class Trainer:
             self.stats.drop(exc.reason)
             log.warning("dropped a segment: %s", exc)
             return 0
+        # A push cut off mid-way can reach Redis twice: redis-py or the worker retries it after a timeout while the
+        # first copy is still in flight (TCP delivers it once the network heals). Both copies are the same bytes.
+        key = (seg.worker_id, seg.created)
+        if key in self._seen:
+            self.stats.drop("duplicate")
+            log.warning("dropped a duplicate segment from worker %s: a second copy of one already read", seg.worker_id)
+            return 0
+        self._seen.append(key)
         lag = self.version - seg.policy_version
         self.stats.lag.append(lag)
         if seg.policy_version < self.stability.floor:  # acted by a policy a rollback abandoned

@@ -1,0 +1,143 @@
+"""Workers on other hosts over a bad network: ``deploy/check-hosts.sh`` run for real, as an operator would run it.
+
+The script builds three Linux network namespaces (a server host with redis-server, moto's S3 server and the trainer;
+two worker hosts), shapes the worker links (tc tbf 20 Mbit/s, 1 % loss with iptables, 50 ± 10 ms through
+``deploy/delay_proxy.py``), cuts one worker host off for 20 s and heals it, and checks that training went on, that the
+cut worker came back and that every segment was counted once. It needs root (namespaces, tc, iptables) and is skipped
+otherwise, with the reason.
+
+It is slow on purpose (about 3 minutes: real processes, two 30 s measurement windows, a 20 s cut), and stays in the
+suite: it is the only test of racer across real network links. The delaying proxy also has a quick test of its own
+on loopback, which needs nothing special.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "deploy" / "check-hosts.sh"
+PROXY = ROOT / "deploy" / "delay_proxy.py"
+
+
+def _cannot_run_hosts() -> str | None:
+    """Why the namespace check cannot run here, or None."""
+    if os.geteuid() != 0:
+        return "needs root: it creates network namespaces, veth pairs, tc qdiscs and iptables rules"
+    for tool in ("ip", "tc", "iptables"):
+        if shutil.which(tool) is None:
+            return f"needs {tool} (iproute2 for ip and tc, the iptables package for iptables)"
+    if subprocess.run(["ip", "netns", "list"], capture_output=True).returncode != 0:
+        return "`ip netns` does not work here"
+    return None
+
+
+def figures(stdout: str) -> dict[str, str]:
+    """The script's closing ``name: value`` lines."""
+    out = {}
+    for line in stdout.splitlines():
+        name, sep, value = line.partition(": ")
+        if sep and name.isidentifier():
+            out[name] = value.strip()
+    return out
+
+
+@pytest.mark.slow(reason="about 3 minutes: real role processes in network namespaces, 30 s windows, a 20 s cut")
+@pytest.mark.skipif(_cannot_run_hosts() is not None, reason=_cannot_run_hosts() or "")
+def test_workers_on_other_hosts_ride_out_a_slow_lossy_network_and_a_cut(tmp_path):
+    env = {**os.environ, "PYTHON": sys.executable}
+    result_json = tmp_path / "figures.json"
+    out = subprocess.run(
+        ["bash", str(SCRIPT), "--json", str(result_json), "--keep", str(tmp_path / "run")],
+        capture_output=True,
+        text=True,
+        timeout=480,
+        env=env,
+    )
+    report = out.stdout[-4000:] + "\n--- stderr ---\n" + out.stderr[-4000:]
+    assert out.returncode == 0, report
+    fig = figures(out.stdout)
+    assert fig["checks_passed"].split("/")[0] == fig["checks_passed"].split("/")[1], report
+    # The figures come last, and say what the checks checked.
+    assert out.stdout.rstrip().splitlines()[-1].startswith("checks_passed:"), report
+    assert float(fig["recovery_s"]) <= 10.0, report
+    assert int(fig["versions_during_cut"]) >= 1, report
+    dropped = json.loads(fig["segments_dropped"])
+    sent, added, accepted = (
+        int(fig["segments_sent"]),
+        int(fig["segments_added_to_stream"]),
+        int(fig["segments_accepted"]),
+    )
+    copies = dropped.get("duplicate", 0)
+    assert added - copies == sent and accepted + sum(dropped.values()) - copies == sent, report
+    assert float(fig["shaped_steps_per_s"]) > 0 and float(fig["unshaped_steps_per_s"]) > 0, report
+    assert float(fig["shaped_bytes_per_env_step"]) > 0, report
+    saved = json.loads(result_json.read_text())
+    assert saved["segments_sent"] == sent and all(saved["checks"].values()), saved["checks"]
+    # Nothing is left behind: the namespaces are gone.
+    left = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+    assert "-srv" not in left and "-w0" not in left, left
+
+
+def _echo_server() -> tuple[socket.socket, int]:
+    server = socket.create_server(("127.0.0.1", 0))
+
+    def serve() -> None:
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            threading.Thread(target=_echo, args=(conn,), daemon=True).start()
+
+    threading.Thread(target=serve, daemon=True).start()
+    return server, server.getsockname()[1]
+
+
+def _echo(conn: socket.socket) -> None:
+    with conn:
+        while data := conn.recv(65536):
+            conn.sendall(data)
+
+
+def test_delay_proxy_delays_each_direction_and_keeps_the_bytes_in_order():
+    server, port = _echo_server()
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        listen = s.getsockname()[1]
+    proxy = subprocess.Popen(
+        [sys.executable, str(PROXY), "--listen", f"127.0.0.1:{listen}", "--target", f"127.0.0.1:{port}"]
+        + ["--delay-ms", "50", "--jitter-ms", "10"],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert "delay 50 ± 10 ms (on)" in proxy.stdout.readline()
+        with socket.create_connection(("127.0.0.1", listen), timeout=10) as c:
+            rtts = []
+            for i in range(5):
+                t0 = time.monotonic()
+                c.sendall(b"ping %d" % i)
+                assert c.recv(100) == b"ping %d" % i
+                rtts.append(time.monotonic() - t0)
+            assert min(rtts) >= 0.08, rtts  # 2 × (50 - 10) ms at least: both directions are delayed
+            payload = os.urandom(3_000_000)
+            threading.Thread(target=c.sendall, args=(payload,), daemon=True).start()
+            got = bytearray()
+            while len(got) < len(payload):
+                got += c.recv(1 << 20)
+            assert bytes(got) == payload  # many chunks, each delayed with jitter: still in order
+    finally:
+        proxy.terminate()
+        proxy.wait(10)
+        server.close()
