@@ -18,9 +18,8 @@
 # links' byte counters all along and checks: training went on through the cut, the cut worker pushed segments again
 # within 10 s of the heal and caught up with the current policy, every segment sent was counted once (accepted or
 # dropped by reason; a second copy of a half-sent push that TCP delivers after the heal is dropped as `duplicate`),
-# none in part, and the cut worker's log says it was retrying. With --cut drop that last check fails: redis-py's own
-# retries (10 s socket timeout, then reconnects bounded by 5 s each) outlast a silent 20 s cut without an error
-# reaching racer's retry log. Each run takes about 3 minutes (RACER_HOSTS_PHASE_S shortens the two 30 s windows). Exits 0 only if every check held; the figures
+# none in part, and the cut worker's log says it was retrying (with --cut drop too: redis-py retries once, then the
+# error reaches racer's Outage, which backs off and logs). Each run takes about 3 minutes (RACER_HOSTS_PHASE_S shortens the two 30 s windows). Exits 0 only if every check held; the figures
 # come last, as `name: value` lines (and as JSON with --json).
 #
 # Traffic goes only to loopback and to the 10.231.0.0/24 addresses made here: the namespaces have no other route,
