@@ -257,11 +257,15 @@ def run_summary(run_id: str, runs: RunStore, store: str, s3_endpoint: str | None
     where = ("" if store == "." else f" --store {store}") + (f" --s3-endpoint {s3_endpoint}" if s3_endpoint else "")
     lines = [f"run files: {runs.store.key_uri(run_prefix(run_id))}"]
     best = runs.pointer(run_id, "best")
-    if best is None:
+    latest = runs.pointer(run_id, "latest")
+    if latest is None:
         lines.append("no checkpoint was written: train for longer (--time-limit)")
         return lines
-    version = best["version"]
-    if version in runs.evaluation_versions(run_id):
+    pick = ""
+    if best is None:  # the evaluator has not finished with a trained checkpoint (v0 is never evaluated)
+        lines.append(f"no checkpoint evaluated yet: train for longer; latest checkpoint: v{latest['version']}")
+        pick = " --checkpoint latest"
+    elif (version := best["version"]) in runs.evaluation_versions(run_id):
         e = runs.read_evaluation(run_id, version)
         laps = e.get("lap_times_s") or []
         lap = f", mean lap {sum(laps) / len(laps):.2f} s, best {min(laps):.2f} s" if laps else ""
@@ -273,8 +277,8 @@ def run_summary(run_id: str, runs: RunStore, store: str, s3_endpoint: str | None
         lines.append(f"best checkpoint: v{version} (not evaluated)")
     lines += [
         "next:",
-        f"  racer eval --run-id {run_id}{where} --video lap.mp4",
-        f"  racer export --run-id {run_id}{where} -o model.onnx",
+        f"  racer eval --run-id {run_id}{where}{pick} --video lap.mp4",
+        f"  racer export --run-id {run_id}{where}{pick} -o model.onnx",
         f"  racer plot {run_id}{where}",
         f"  racer models ls{where}",
     ]

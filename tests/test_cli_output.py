@@ -49,6 +49,15 @@ def test_run_summary_of_a_run_without_checkpoints_says_to_train_longer(tmp_path:
     assert run_summary("r2", runs, ".", None)[-1] == "no checkpoint was written: train for longer (--time-limit)"
 
 
+def test_run_summary_before_any_evaluation_points_at_the_latest_checkpoint(tmp_path: Path) -> None:
+    runs = RunStore(LocalStore(str(tmp_path)))
+    runs.save_checkpoint("r3", 0, b"weights", {"env_steps": 0, "created": time.time()})  # v0 is never evaluated
+    lines = run_summary("r3", runs, ".", None)
+    assert lines[1] == "no checkpoint evaluated yet: train for longer; latest checkpoint: v0"
+    assert "  racer eval --run-id r3 --checkpoint latest --video lap.mp4" in lines
+    assert "  racer export --run-id r3 --checkpoint latest -o model.onnx" in lines
+
+
 def _rows(n: int) -> list[dict]:
     evaluation = {"completion_rate": 1.0, "mean_progress": 100.0, "best_lap_s": 9.87}
     return [
