@@ -28,8 +28,12 @@ class RoleFailed(UserError, RuntimeError):
     """A role process ended the run; the message says which, its last log line and where its log is."""
 
 
-def setup_logging(verbose: bool = False) -> None:
-    """A role's log format and level (DEBUG with ``-v``)."""
+def setup_logging(verbose: bool = False, simtrace_lines: bool = False) -> None:
+    """A role's log format and level (DEBUG with ``-v``); per-step ``SIM_TRACE_LOG`` lines only if asked."""
+    from common.simtrace import LOG as SIMTRACE_LOG
+
+    # One line per step (15 a second per env) fills a log fast; the sim-trace CSVs in the store hold the same rows.
+    SIMTRACE_LOG.setLevel(logging.INFO if simtrace_lines else logging.WARNING)
     logging.basicConfig(
         level=logging.DEBUG if verbose else logging.INFO,
         format="%(asctime)s %(name)s %(levelname)s %(message)s",

@@ -113,3 +113,16 @@ def test_models_prune_says_what_it_frees_and_keeps_latest_and_best(tmp_path: Pat
     assert [c["version"] for c in runs.list_checkpoints("r1")] == [3, 6]
     missing = CliRunner().invoke(app, ["models", "prune", *store, "--run-id", "nope"])
     assert missing.exit_code == 2 and "run 'nope' does not exist" in missing.stderr
+
+
+def test_roles_log_no_per_step_simtrace_lines_unless_asked() -> None:
+    import logging
+
+    from common.simtrace import LOG as SIMTRACE_LOG
+    from racer.lifecycle import setup_logging
+
+    setup_logging()  # what racer worker and racer evaluator do
+    assert not SIMTRACE_LOG.isEnabledFor(logging.INFO)
+    setup_logging(simtrace_lines=True)  # racer worker --simtrace-log
+    assert SIMTRACE_LOG.isEnabledFor(logging.INFO)
+    SIMTRACE_LOG.setLevel(logging.NOTSET)

@@ -77,16 +77,11 @@ def worker(
     verbose: Verbose = False,
 ) -> None:
     """Run one rollout worker (for docker compose and workers on other machines)."""
-    import logging
-
-    from common.simtrace import LOG as SIMTRACE_LOG
     from racer.lifecycle import setup_logging, stop_event_on_signals
     from racer.runconfig import parse_duration
     from rollout_worker.worker import WorkerOptions, run_worker
 
-    setup_logging(verbose)
-    # One line per step (15 a second per worker) fills a log fast; the sim-trace CSVs in the store hold the same rows.
-    SIMTRACE_LOG.setLevel(logging.INFO if simtrace_log else logging.WARNING)
+    setup_logging(verbose, simtrace_lines=simtrace_log)
     # Without --index, the worker takes the next free index from Redis (scaled compose workers: 0, 1, …).
     opts = WorkerOptions(
         run_id, redis_url, store, s3_endpoint, index, worker_id, outage_s=parse_duration(outage_timeout)
