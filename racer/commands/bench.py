@@ -10,16 +10,14 @@ import typer
 from rich.table import Table
 
 from common.errors import OptionError
-from racer.commands.options import Car, Hyperparams, JsonOut, console, int_list, write_json
+from racer.commands.options import Car, Hyperparams, JsonOut, Track, console, int_list, write_json
 
 app = typer.Typer(no_args_is_help=True, help="Benchmarks.")
-
-TrackOpt = Annotated[str, typer.Option(help="Track name or .npy path.")]
 
 
 @app.command("env")
 def env(
-    track: TrackOpt = "reinvent_base",
+    track: Track = "reinvent_base",
     steps: Annotated[int, typer.Option(min=100, help="Env steps per timed run.")] = 3000,
     repeats: Annotated[int, typer.Option(min=1, help="Timed runs; the median is reported.")] = 5,
     camera: Annotated[str, typer.Option(help="Camera path: ground or mujoco.")] = "ground",
@@ -44,7 +42,7 @@ def env(
 
 @app.command("transport")
 def transport(
-    track: TrackOpt = "reinvent_base",
+    track: Track = "reinvent_base",
     segments: Annotated[int, typer.Option(min=3, help="Segments to time.")] = 30,
     segment_steps: Annotated[int, typer.Option(min=1, help="Env steps per segment.")] = 32,
     json_out: JsonOut = None,
@@ -61,7 +59,7 @@ def transport(
 def loop(
     workers: Annotated[str, typer.Option(help="Comma-separated worker counts.")] = "1,2,4",
     duration: Annotated[str, typer.Option(help="Run time per worker count (90s, 5m).")] = "90s",
-    track: TrackOpt = "reinvent_base",
+    track: Track = "reinvent_base",
     hyperparams: Hyperparams = None,
     json_out: JsonOut = None,
 ) -> None:
@@ -95,7 +93,7 @@ def loop(
 def train(
     seeds: Annotated[str, typer.Option(help="Comma-separated seeds; medians are over them.")] = "0,1,2",
     time_limit: Annotated[str, typer.Option(help="Give up on a seed after this long, per system (10m).")] = "10m",
-    track: TrackOpt = "reinvent_base",
+    track: Track = "reinvent_base",
     workers: Annotated[int, typer.Option(min=1, help="racer's workers and SB3's SubprocVecEnv envs.")] = 2,
     hyperparams: Hyperparams = None,
     eval_episodes: Annotated[int, typer.Option(min=1, help="Evaluation starts per direction.")] = 3,
@@ -191,7 +189,7 @@ def update(
 def soak(
     duration: Annotated[str, typer.Option(help="Run time (90s, 10m, 2h).")] = "10m",
     workers: Annotated[int, typer.Option(min=1, help="Rollout worker processes.")] = 2,
-    track: TrackOpt = "Straight_track",
+    track: Track = "Straight_track",
     stream_maxlen: Annotated[int, typer.Option(min=4, help="Cap of the segment stream, entries.")] = 16,
     json_out: JsonOut = None,
 ) -> None:

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from racer.commands.options import ActionSpace, console, json_option, write_json
+from racer.commands.options import ActionSpace, Track, console, json_option, write_json
 
 app = typer.Typer(no_args_is_help=True, help="The bundled DeepRacer tracks.")
 
@@ -41,7 +41,7 @@ def show(
 
 
 def drive(
-    track: Annotated[str, typer.Option(help="Track name or .npy path.")] = "reinvent_base",
+    track: Track = "reinvent_base",
     episodes: Annotated[int, typer.Option(min=1, help="Episodes to drive.")] = 5,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     reward_fn: Annotated[Path | None, typer.Option("--reward-fn", help="DeepRacer reward function file.")] = None,
