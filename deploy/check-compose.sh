@@ -47,11 +47,7 @@ on_exit() {
         dc ps || true
         dc logs --no-color --tail=25 2>&1 | grep -v SIM_TRACE_LOG | tail -80 || true
     fi
-    clean_up
-    phase ""
-    print_figures
-    ((rc == 0)) && echo "$SCRIPT: all checks passed" || echo "$SCRIPT: FAILED (exit $rc)"
-    exit "$rc"
+    finish "$rc"
 }
 trap on_exit EXIT
 trap 'exit 130' INT TERM

@@ -63,11 +63,7 @@ on_exit() {
             timeout 30 docker service logs --tail 15 "${STACK}_$s" 2>&1 | grep -v SIM_TRACE_LOG | tail -15 || true
         done
     fi
-    clean_up
-    phase ""
-    print_figures
-    ((rc == 0)) && echo "$SCRIPT: all checks passed" || echo "$SCRIPT: FAILED (exit $rc)"
-    exit "$rc"
+    finish "$rc"
 }
 trap on_exit EXIT
 trap 'exit 130' INT TERM

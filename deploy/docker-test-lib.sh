@@ -316,3 +316,12 @@ EOF
     HOST_S3_URL="http://127.0.0.1:$RACER_TEST_S3_PORT"
     figure ports "Redis 127.0.0.1:$RACER_TEST_REDIS_PORT, S3 127.0.0.1:$RACER_TEST_S3_PORT"
 }
+
+finish() {  # finish RC: the script's last words on any exit: clean up (the script's clean_up), figures, verdict
+    local rc=$1
+    clean_up
+    phase ""
+    print_figures
+    ((rc == 0)) && echo "$SCRIPT: all checks passed" || echo "$SCRIPT: FAILED (exit $rc)"
+    exit "$rc"
+}
