@@ -95,8 +95,7 @@ class Bus:
     def trainer_status(self) -> dict[str, Any] | None:
         """The trainer's last status, None if it is not running (or wrote none for TRAINER_STATUS_TTL_S)."""
         raw = self.redis.get(self.keys.trainer_status)
-        status = _json_object(raw) if raw is not None else None
-        return status
+        return None if raw is None else _json_object(raw)
 
     def mark_training(self, version: int) -> None:
         """Say a PPO update from ``version`` is running (workers with max_policy_lag 0 wait for its result)."""
