@@ -14,6 +14,7 @@ import redis
 
 from common.keys import Keys
 from common.protocol import EvaluationSummary, Heartbeat, PolicyVersion, ProtocolError
+from common.redis_util import connect_checked
 
 EVALUATIONS_KEPT = 1000
 """Evaluation summaries kept in Redis (a run lasts hours; the store keeps every evaluation)."""
@@ -29,6 +30,13 @@ class Bus:
     def __init__(self, client: redis.Redis, run_id: str) -> None:
         self.redis = client
         self.keys = Keys(run_id)
+
+    @classmethod
+    def connect(cls, url: str, run_id: str) -> Bus:
+        """The bus of ``run_id`` over a checked connection to ``url`` (``common.redis_util.connect_checked``). A bad
+        run id fails first, naming it, before any connection is tried."""
+        keys = Keys(run_id)
+        return cls(connect_checked(url), keys.run_id)
 
     # --- the policy: trainer → workers, evaluator ----------------------------------------------
     def publish_policy(self, pv: PolicyVersion) -> None:

@@ -24,10 +24,9 @@ import torch
 from common.bus import Bus
 from common.config import EnvConfig, RunConfig
 from common.framestack import FrameStack
-from common.keys import check_run_id
 from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
-from common.redis_util import connect_checked, redact
+from common.redis_util import redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
 from common.simtrace import SimTraceRecorder
 from model_store import RunStore, StoreError, is_transient, open_store
@@ -79,9 +78,7 @@ class RolloutWorker:
     def __init__(self, opts: WorkerOptions, stop: threading.Event | None = None) -> None:
         self.opts = opts
         self.stop = stop or threading.Event()
-        check_run_id(opts.run_id)  # a bad run id fails before any connection is tried
-        self.redis = connect_checked(opts.redis_url)
-        self.bus = Bus(self.redis, opts.run_id)
+        self.bus = Bus.connect(opts.redis_url, opts.run_id)
         self.runs = RunStore(open_store(opts.store, opts.s3_endpoint))
         self.redis_outage = Outage(f"Redis at {redact(opts.redis_url)}", redis_transient, log, self.stop, opts.outage_s)
         self.store_outage = Outage(f"store {self.runs.store.uri}", is_transient, log, self.stop, opts.outage_s)

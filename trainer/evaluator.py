@@ -28,10 +28,9 @@ from common.action_space import default_action_space, load_action_space
 from common.bus import Bus
 from common.config import EnvConfig, RunConfig
 from common.framestack import FrameStack
-from common.keys import check_run_id
 from common.policy import ActorCritic, load_policy
 from common.protocol import EvaluationSummary, PolicyVersion, ProtocolError
-from common.redis_util import connect_checked, redact
+from common.redis_util import redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
 from common.simtrace import SimTraceRecorder
 from model_store import RunStore, StoreKeyError, is_transient, open_store
@@ -292,8 +291,7 @@ def run_evaluator(opts: EvaluatorOptions, stop: threading.Event | None = None) -
     ends it with OutageError."""
     torch.set_num_threads(1)
     stop = stop or threading.Event()
-    check_run_id(opts.run_id)  # a bad run id fails before any connection is tried
-    bus = Bus(connect_checked(opts.redis_url), opts.run_id)
+    bus = Bus.connect(opts.redis_url, opts.run_id)
     runs = RunStore(open_store(opts.store, opts.s3_endpoint))
     on_redis = Outage(f"Redis at {redact(opts.redis_url)}", redis_transient, log, stop, opts.outage_s).call
     on_store = Outage(f"store {runs.store.uri}", is_transient, log, stop, opts.outage_s).call

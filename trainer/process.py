@@ -41,7 +41,7 @@ from common.policy import (
     state_dict_to_bytes,
 )
 from common.protocol import EpisodeSummary, PolicyVersion, ProtocolError, Segment, decode_segment
-from common.redis_util import connect_checked, redact
+from common.redis_util import redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
 from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
@@ -190,8 +190,7 @@ class Trainer:
     def __init__(self, run: RunConfig, opts: TrainerOptions, stop: threading.Event | None = None) -> None:
         self.run, self.opts = run, opts
         self.stop = stop or threading.Event()
-        self.redis = connect_checked(opts.redis_url)
-        self.bus = Bus(self.redis, run.run_id)
+        self.bus = Bus.connect(opts.redis_url, run.run_id)
         self.runs = RunStore(open_store(opts.store, opts.s3_endpoint))
         self.redis_outage = Outage(f"Redis at {redact(opts.redis_url)}", redis_transient, log, self.stop, opts.outage_s)
         self.store_outage = Outage(f"store {self.runs.store.uri}", is_transient, log, self.stop, opts.outage_s)

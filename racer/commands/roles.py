@@ -135,11 +135,8 @@ def status(
     """The state of a run from its Redis: trainer, live workers, newest policy, last evaluation. Exits 1 when no
     trainer is running (for health checks: docker compose uses it)."""
     from common.bus import Bus
-    from common.keys import check_run_id
-    from common.redis_util import connect_checked
 
-    check_run_id(run_id)  # a bad run id fails before any connection is tried
-    state = Bus(connect_checked(redis_url), run_id).snapshot()
+    state = Bus.connect(redis_url, run_id).snapshot()
     trainer = state["trainer"]
     if not quiet and json_out != "-":
         console.print(_status_lines(state), highlight=False, soft_wrap=True)
