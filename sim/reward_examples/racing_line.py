@@ -10,11 +10,16 @@
 # the line's curvature (LATERAL_ACCEL), lowered before bends by a braking pass (BRAKE). Set the three
 # constants to your car: `racer limit TRACK --json F` prints its measured limits (car_limits).
 #
-# Each step pays, each term between 0 and 1:
+# Each step pays the quality of the driving, weighted by the pace so far:
 #   line  - how close the car is to the line (0 at half a track width away);
 #   speed - how close the action's speed is to the line's target speed there;
-#   pace  - progress per step against the pace of the line driven at its target speeds;
-# and a lap completed pays a bonus that grows as the lap gets shorter. Off the track it pays 1e-3.
+#   pace  - progress per step so far against the pace of the line driven at its target speeds.
+# The step reward is pace * (line + speed) / 2. Weighting by pace makes what a whole lap earns from these terms
+# about the same however long the lap takes (about ideal steps * quality): a per-step reward that is not weighted
+# so pays a slow lap more than a fast one, because a slow lap has more steps, and a learner then drifts to slower
+# laps. What makes a fast lap worth more is the bonus for a completed lap, which grows as the square of the lap's
+# speed (ideal steps / steps) with no cap, so a lap faster than this line's estimate still pays more.
+# Off the track it pays 1e-3.
 
 import math
 
@@ -23,6 +28,7 @@ LATERAL_ACCEL = 5.0    # m/s²: the sideways acceleration your car holds in a be
 BRAKE = 5.0            # m/s²: how hard it brakes
 MARGIN = 0.1           # m: the line keeps its centre this far inside each border
 ITERATIONS = 300       # relaxation sweeps building the line
+PACE_CAP = 2.0         # bounds the pace weight (it exceeds 1 only when the car beats this line's estimate)
 
 _LINES = {}            # (direction, first waypoint, waypoint count) -> (points, target speeds, ideal steps a lap)
 
@@ -103,8 +109,8 @@ def reward_function(params):
     target = speeds[i]
     speed_score = max(0.0, 1.0 - abs(params['speed'] - target) / MAX_SPEED)
     steps = max(params['steps'], 1)
-    pace_score = min(1.0, (params['progress'] / steps) / (100.0 / ideal_steps))
-    reward = line_score + speed_score + pace_score
+    pace = min(PACE_CAP, (params['progress'] / steps) / (100.0 / ideal_steps))
+    reward = max(1e-3, pace * (line_score + speed_score) / 2.0)
     if params['progress'] >= 100:
-        reward += 20.0 * min(1.0, ideal_steps / steps)
+        reward += ideal_steps * (ideal_steps / steps) ** 2
     return float(reward)
