@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from common.errors import UserError
 from common.jsonfile import read_json_object
+from common.sensors import FRONT_FACING_CAMERA, LEGACY_CAMERA, SUPPORTED_COMBINATIONS, sensor_problem
 
 MAX_STEERING_DEG = 30.0
 MIN_SPEED_MPS = 0.1
@@ -66,7 +67,7 @@ class ActionSpace(BaseModel):
     model_config = ConfigDict(extra="allow")
     action_space_type: Literal["discrete", "continuous"] = "discrete"
     action_space: list[DiscreteAction] | ContinuousSpace = Field(default_factory=list)
-    sensor: list[str] = Field(default_factory=lambda: ["FRONT_FACING_CAMERA"])
+    sensor: list[str] = Field(default_factory=lambda: [FRONT_FACING_CAMERA])
     neural_network: str = "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"
     training_algorithm: str = "clipped_ppo"
     version: str = "5"
@@ -161,8 +162,10 @@ def default_action_space() -> ActionSpace:
     return ActionSpace(action_space_type="discrete", action_space=actions)
 
 
-SUPPORTED_SENSORS: tuple[list[str], ...] = (["FRONT_FACING_CAMERA"],)
-"""The model_metadata ``sensor`` lists racer can honour (stereo cameras and LiDAR are not built yet)."""
+SUPPORTED_SENSORS: tuple[list[str], ...] = tuple(list(c) for c in SUPPORTED_COMBINATIONS)
+"""The model_metadata ``sensor`` lists racer can honour, in any order (``common.sensors``): the front or stereo
+camera, alone or with ``LIDAR`` or ``SECTOR_LIDAR``. The simapp also accepts ``LEFT_CAMERA`` and
+``DISCRETIZED_SECTOR_LIDAR``, which racer does not build."""
 SUPPORTED_ALGORITHMS: tuple[str, ...] = ("clipped_ppo",)
 """The ``training_algorithm`` values racer can honour (the simapp also has ``sac``)."""
 NEURAL_NETWORKS: tuple[str, ...] = (
@@ -176,30 +179,33 @@ NEURAL_NETWORKS: tuple[str, ...] = (
 def check_supported(space: ActionSpace, where: str) -> None:
     """Refuse, in one line naming ``where``, the key and the value, what racer would otherwise silently not honour."""
     checks = (
+        ("sensor", space.sensor, [list(s) for s in SUPPORTED_SENSORS], sensor_problem(space.sensor)),
         (
-            "sensor",
-            space.sensor,
-            [list(s) for s in SUPPORTED_SENSORS],
-            "racer has the front-facing camera only: stereo cameras and LiDAR are not built yet",
+            "training_algorithm",
+            space.training_algorithm,
+            list(SUPPORTED_ALGORITHMS),
+            None if space.training_algorithm in SUPPORTED_ALGORITHMS else "racer trains clipped PPO",
         ),
-        ("training_algorithm", space.training_algorithm, list(SUPPORTED_ALGORITHMS), "racer trains clipped PPO"),
-        ("neural_network", space.neural_network, list(NEURAL_NETWORKS), "DeepRacer's three camera networks"),
+        (
+            "neural_network",
+            space.neural_network,
+            list(NEURAL_NETWORKS),
+            None if space.neural_network in NEURAL_NETWORKS else "DeepRacer's three convolutional networks",
+        ),
     )
     for key, value, supported, why in checks:
-        if value not in supported:
+        if why is not None:
             allowed = " or ".join(json.dumps(v) for v in supported)
             raise ActionSpaceError(f"{where}: {key} = {json.dumps(value)} is not supported ({why}); use {allowed}")
-
-
-LEGACY_CAMERA = "observation"
-"""The camera's name in the simapp's version-1 files (``markov/architecture/constants.py``, ``Input.OBSERVATION``)."""
 
 
 def _as_the_simapp_reads_it(data: dict) -> dict:
     """The file's values as the simapp's ``parse_model_metadata`` (``markov/boto/s3/files/model_metadata.py``) takes
     them: ``training_algorithm`` and ``action_space_type`` lower-cased and stripped; a file with no ``version`` and no
-    ``sensor``, or a ``version`` below 2, drives the front camera whatever its ``sensor`` says; ``version`` is
-    ``float()``-ed (a JSON number is accepted). A file without a type gets the one its ``action_space`` implies."""
+    ``sensor``, or a ``version`` below 2, drives the front camera whatever its ``sensor`` says; the version-1 camera
+    name ``observation`` is the front camera (``markov/sensors/sensors_rollout.py``: ``Observation`` reads the front
+    camera's topic); ``version`` is ``float()``-ed (a JSON number is accepted). A file without a type gets the one
+    its ``action_space`` implies."""
     data = dict(data)
     for key in ("training_algorithm", "action_space_type"):
         if isinstance(data.get(key), str):
@@ -211,8 +217,10 @@ def _as_the_simapp_reads_it(data: dict) -> dict:
         legacy = float(data["version"]) < 2.0 if "version" in data else "sensor" not in data
     except (TypeError, ValueError):
         legacy = False  # the model's own check names the bad version
-    if legacy or data.get("sensor") == [LEGACY_CAMERA]:
-        data["sensor"] = ["FRONT_FACING_CAMERA"]
+    if legacy:
+        data["sensor"] = [FRONT_FACING_CAMERA]
+    elif isinstance(data.get("sensor"), list):
+        data["sensor"] = [FRONT_FACING_CAMERA if s == LEGACY_CAMERA else s for s in data["sensor"]]
     if "action_space_type" not in data:  # older DeepRacer files have no type: infer it
         data["action_space_type"] = "continuous" if isinstance(data.get("action_space"), dict) else "discrete"
     return data
@@ -220,7 +228,7 @@ def _as_the_simapp_reads_it(data: dict) -> dict:
 
 def load_action_space(path: str | Path) -> ActionSpace:
     """Read a DeepRacer ``model_metadata.json``; raise ActionSpaceError naming the file if it is unusable or asks
-    for what racer cannot honour (another sensor, SAC)."""
+    for what racer cannot honour (a sensor list racer does not build, SAC)."""
     p = Path(path)
     data = _as_the_simapp_reads_it(read_json_object(p, "action space file", ActionSpaceError))
     try:

@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from common.car_calibration import CarCalibration
 from common.errors import OptionError, UserError
 from common.hyperparams import Hyperparameters
+from common.race import RaceConfig
 
 FRAME_HEIGHT, FRAME_WIDTH = 120, 160
 """The camera frame a policy sees, pixels: DeepRacer's 160×120 grayscale. The camera renders it, the network is
@@ -150,6 +151,9 @@ class EnvConfig(_Strict):
     car: CarCalibration = Field(default_factory=CarCalibration)
     """The car's calibration (``racer calibrate``'s car.json): effects between the command and the wheels.
     Held inline, so a run's config.json carries it to every worker; no effects = the car as modelled."""
+    race: RaceConfig = Field(default_factory=RaceConfig)
+    """The race type (time trial, object avoidance, head-to-bot) with its obstacles, bot cars and evaluation
+    penalties (``common/race.py``)."""
 
 
 class PretrainedError(UserError, ValueError):

@@ -1,21 +1,42 @@
 """The actor-critic networks, shared by the trainer and the rollout workers.
 
 Observations are uint8 camera frames of shape (B, H, W, C), channels last as the env produces them, with
-C = stack_size stacked grayscale frames; the network scales them to [0, 1] and moves channels first itself.
+C = stack_size stacked grayscale frames (2 × stack_size for the stereo pair: left, right of each frame), plus,
+when the run's sensors include a LiDAR, a float32 vector (B, N) (``common.sensors.observation_spec``). The network
+scales the frames to [0, 1] and moves channels first itself; the LiDAR values go in as they are, as in DeepRacer.
 
 Two trunks, named after DeepRacer's model_metadata ``neural_network``:
 
 * ``shallow`` (DEEP_CONVOLUTIONAL_NETWORK_SHALLOW), DeepRacer's 3-layer CNN:
   conv 32 8×8/4 → conv 64 4×4/2 → conv 64 3×3/1 → dense 512, each followed by ReLU.
   On 120×160 frames the last conv gives 64×11×16 = 11264 features.
-* ``deep`` (DEEP_CONVOLUTIONAL_NETWORK / _DEEP), racer's 4-conv variant, not DeepRacer's exact network:
-  the shallow convs plus conv 128 3×3/1 → dense 512. On 120×160 frames the last conv gives 128×9×14.
+* ``deep`` (DEEP_CONVOLUTIONAL_NETWORK / _DEEP), for the front camera racer's 4-conv variant, not DeepRacer's exact
+  network: the shallow convs plus conv 128 3×3/1 → dense 512. On 120×160 frames the last conv gives 128×9×14.
 
-Optional BatchNorm2d after each conv (before its ReLU) and Dropout before the dense layer. The policy head gives
+With the other sensors the layers are the simapp's (aws-deepracer-community/deepracer-simapp, ``bundle/markov/``):
+
+* STEREO_CAMERAS (``sensors/utils.py: get_stereo_camera_embedders``): ``shallow``: the shallow convs on the
+  2-channel pair; ``deep`` (DEEP_CONVOLUTIONAL_NETWORK and _DEEP alike): conv 32 3×3/1 → 64 3×3/2 → 64 3×3/1 →
+  128 3×3/2 → 128 3×3/1, on 120×160 frames 128×25×35 = 112000 features.
+* LIDAR / SECTOR_LIDAR (``sensors/utils.py: get_lidar_embedders``, the same for every ``neural_network``): dense
+  256 → dense 256, each with ReLU (``agents/utils.py: get_network_settings`` builds every embedder with
+  ``EmbedderType.SCHEME`` and ReLU, so the scheme's batch-norm and dropout entries are not used).
+* The embeddings are concatenated in the sorted order of the sensor names (rl_coach
+  ``architectures/tensorflow_components/general_network.py``: ``for input_name in sorted(...)``, ``tf.concat(...,
+  name="merger")``), so the front camera's before the LiDAR's and the LiDAR's before the stereo pair's, then the
+  middleware dense 512 with ReLU (``DEFAULT_MIDDLEWARE``) and the heads. The simapp gives
+  DEEP_CONVOLUTIONAL_NETWORK_DEEP the ``VGG_MIDDLEWARE`` (dense 256 → 128) instead; racer's ``deep`` keeps 512 for
+  both deep names, as it does for the front camera. rl_coach's clipped PPO also gives the value and the policy
+  separate copies of this network (``use_separate_networks_per_head``); racer's heads share one.
+
+Optional BatchNorm2d after each conv (before its ReLU) and Dropout before the dense 512 layer. The policy head gives
 logits of a Categorical (discrete) or the mean of a diagonal Gaussian (continuous) whose log-std is a learned
 state-independent parameter. Continuous actions are in the env's units and are not squashed or clipped by the
 distribution: the env clips them. The Gaussian's mean is mid + half * head(h) and its std half * exp(log_std),
 with mid and half the centre and half-width of the action range, so one initialization suits degrees and m/s.
+
+A camera-only network keeps one ``trunk`` (convs, dense 512), so its state dict is the same as before LiDAR
+existed; a network with a LiDAR has ``camera_embedder`` (convs), ``lidar_embedder`` and ``middleware`` instead.
 
 Checkpoints are serialized with ``torch.save`` and read back with ``torch.load(weights_only=True)``, which
 refuses any pickled object other than tensors and plain containers. ``load_policy`` is the one way to get a stored
@@ -27,6 +48,7 @@ from __future__ import annotations
 import io
 import math
 import pickle
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
@@ -38,6 +60,7 @@ from torch.distributions import Categorical, Distribution, Independent, Normal
 # (racer train's launcher) start without importing torch; re-exported here, where the network is built.
 from common.config import FRAME_HEIGHT, FRAME_WIDTH, NetworkName, PolicyConfig, network_from_metadata  # noqa: F401
 from common.errors import UserError
+from common.sensors import FRONT_FACING_CAMERA, STEREO_CAMERAS, ObsSpec, observation_spec
 
 if TYPE_CHECKING:
     from common.action_space import ActionSpace
@@ -47,27 +70,37 @@ if TYPE_CHECKING:
 Precision = Literal["fp32", "bf16"]
 ActionKind = Literal["discrete", "continuous"]
 
-# (out_channels, kernel, stride) of each conv layer.
-_CONV_LAYERS: dict[NetworkName, tuple[tuple[int, int, int], ...]] = {
-    "shallow": ((32, 8, 4), (64, 4, 2), (64, 3, 1)),
-    "deep": ((32, 8, 4), (64, 4, 2), (64, 3, 1), (128, 3, 1)),
+_SHALLOW = ((32, 8, 4), (64, 4, 2), (64, 3, 1))
+# (out_channels, kernel, stride) of each conv layer, per camera and trunk.
+_CONV_LAYERS: dict[tuple[str, NetworkName], tuple[tuple[int, int, int], ...]] = {
+    (FRONT_FACING_CAMERA, "shallow"): _SHALLOW,
+    (FRONT_FACING_CAMERA, "deep"): (*_SHALLOW, (128, 3, 1)),
+    # simapp markov/sensors/utils.py get_stereo_camera_embedders
+    (STEREO_CAMERAS, "shallow"): _SHALLOW,
+    (STEREO_CAMERAS, "deep"): ((32, 3, 1), (64, 3, 2), (64, 3, 1), (128, 3, 2), (128, 3, 1)),
 }
 HIDDEN = 512
-"""Width of the dense layer after the convolutions, units."""
+"""Width of the dense layer after the convolutions (the simapp's ``DEFAULT_MIDDLEWARE``), units."""
+LIDAR_EMBEDDER: tuple[int, ...] = (256, 256)
+"""Widths of the LiDAR embedder's dense layers (simapp markov/sensors/utils.py ``get_lidar_embedders``), units."""
 
 
 class CheckpointError(UserError, ValueError):
     """Bytes that are not a safe, well-formed state dict or checkpoint."""
 
 
-def conv_output_shape(obs_shape: tuple[int, int, int], network: NetworkName) -> tuple[int, int, int]:
-    """(channels, height, width) of the last convolution's output for (H, W, C) frames (valid padding)."""
+def conv_output_shape(
+    obs_shape: tuple[int, int, int], network: NetworkName, camera: str = FRONT_FACING_CAMERA
+) -> tuple[int, int, int]:
+    """(channels, height, width) of the last convolution's output for (H, W, C) frames (valid padding, as rl_coach's
+    Keras ``Conv2D``)."""
+    layers = _CONV_LAYERS[camera, network]
     h, w = obs_shape[0], obs_shape[1]
-    for _, kernel, stride in _CONV_LAYERS[network]:
+    for _, kernel, stride in layers:
         h, w = (h - kernel) // stride + 1, (w - kernel) // stride + 1
         if h < 1 or w < 1:
             raise ValueError(f"frames of {obs_shape[0]}×{obs_shape[1]} are too small for the {network} network")
-    return _CONV_LAYERS[network][-1][0], h, w
+    return layers[-1][0], h, w
 
 
 def _init(layer: nn.Module, gain: float) -> nn.Module:
@@ -77,20 +110,30 @@ def _init(layer: nn.Module, gain: float) -> nn.Module:
     return layer
 
 
-def _conv_trunk(in_channels: int, cfg: PolicyConfig) -> nn.Sequential:
-    """The convolutions of ``cfg.network``, each with optional BatchNorm2d and a ReLU."""
+def _conv_trunk(in_channels: int, cfg: PolicyConfig, camera: str = FRONT_FACING_CAMERA) -> list[nn.Module]:
+    """The convolutions of ``cfg.network`` for ``camera``, each with optional BatchNorm2d and a ReLU."""
     layers: list[nn.Module] = []
-    for out_channels, kernel, stride in _CONV_LAYERS[cfg.network]:
+    for out_channels, kernel, stride in _CONV_LAYERS[camera, cfg.network]:
         layers.append(_init(nn.Conv2d(in_channels, out_channels, kernel, stride), math.sqrt(2)))
         if cfg.batch_norm:
             layers.append(nn.BatchNorm2d(out_channels))
         layers.append(nn.ReLU())
         in_channels = out_channels
-    return nn.Sequential(*layers)
+    return layers
+
+
+def _dense(in_features: int, widths: Sequence[int]) -> list[nn.Module]:
+    """Dense layers of ``widths``, each with a ReLU."""
+    layers: list[nn.Module] = []
+    for width in widths:
+        layers += [_init(nn.Linear(in_features, width), math.sqrt(2)), nn.ReLU()]
+        in_features = width
+    return layers
 
 
 class ActorCritic(nn.Module):
-    """A shared CNN trunk with a policy head and a value head.
+    """A shared trunk (camera CNN, with a LiDAR: camera CNN + LiDAR embedder + middleware) with a policy head and a
+    value head.
 
     ``forward`` returns the distribution parameters (logits, or the Gaussian mean in env units) and V(o).
     For networks with dropout or batch norm, rollout workers should call ``eval()`` before acting.
@@ -104,19 +147,36 @@ class ActorCritic(nn.Module):
         action_low: tuple[float, ...] | None = None,
         action_high: tuple[float, ...] | None = None,
         cfg: PolicyConfig | None = None,
+        sensors: Sequence[str] | None = None,
     ) -> None:
         super().__init__()
         cfg = cfg or PolicyConfig()
+        self.spec: ObsSpec = observation_spec((FRONT_FACING_CAMERA,) if sensors is None else sensors, cfg.stack_size)
+        """The sensors and the observation they give (camera channels, LiDAR size)."""
         self.obs_shape = tuple(int(v) for v in obs_shape)
-        if len(self.obs_shape) != 3 or self.obs_shape[2] != cfg.stack_size:
-            raise ValueError(f"obs_shape {obs_shape} is not (H, W, stack_size={cfg.stack_size})")
+        if len(self.obs_shape) != 3 or self.obs_shape[2] != self.spec.camera_channels:
+            per_frame = "" if self.spec.frame_channels == 1 else f" × {self.spec.frame_channels} ({self.spec.camera})"
+            raise ValueError(f"obs_shape {obs_shape} is not (H, W, stack_size={cfg.stack_size}{per_frame})")
+        self.lidar_size = self.spec.lidar_size
         self.action_kind = action_kind
         self.cfg = cfg
-        convs = _conv_trunk(self.obs_shape[2], cfg)
-        self.conv_out_shape = conv_output_shape(self.obs_shape, cfg.network)
-        dense: list[nn.Module] = [nn.Flatten()] + ([nn.Dropout(cfg.dropout)] if cfg.dropout > 0 else [])
-        dense += [_init(nn.Linear(math.prod(self.conv_out_shape), HIDDEN), math.sqrt(2)), nn.ReLU()]
-        self.trunk = nn.Sequential(*convs, *dense)
+        camera = self.spec.camera
+        convs = _conv_trunk(self.obs_shape[2], cfg, camera)
+        self.conv_out_shape = conv_output_shape(self.obs_shape, cfg.network, camera)
+        dropout: list[nn.Module] = [nn.Dropout(cfg.dropout)] if cfg.dropout > 0 else []
+        camera_features = math.prod(self.conv_out_shape)
+        if not self.lidar_size:
+            # Camera only: one Sequential, whose state dict keys are those of every checkpoint before LiDAR.
+            self.trunk = nn.Sequential(*convs, nn.Flatten(), *dropout, *_dense(camera_features, (HIDDEN,)))
+            self.camera_embedder = self.lidar_embedder = self.middleware = None
+        else:
+            self.trunk = None
+            self.camera_embedder = nn.Sequential(*convs, nn.Flatten())
+            self.lidar_embedder = nn.Sequential(*_dense(self.lidar_size, LIDAR_EMBEDDER))
+            merged = camera_features + LIDAR_EMBEDDER[-1]
+            self.middleware = nn.Sequential(*dropout, *_dense(merged, (HIDDEN,)))
+            # rl_coach concatenates the embeddings in the sorted order of the input names.
+            self._lidar_first = self.spec.lidar.name < camera
         self.value_head = _init(nn.Linear(HIDDEN, 1), 1.0)
         self.action_dim = self._build_policy_head(n_actions, action_low, action_high)
         self.trunk_dtype: torch.dtype | None = None
@@ -157,21 +217,45 @@ class ActorCritic(nn.Module):
             raise ValueError(f"precision must be 'fp32' or 'bf16', got {precision!r}")
         self.trunk_dtype = torch.bfloat16 if precision == "bf16" else None
 
-    def features(self, obs: torch.Tensor) -> torch.Tensor:
-        """The trunk's 512 features (float32) of a uint8 (B, H, W, C) batch."""
+    def features(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> torch.Tensor:
+        """The trunk's 512 features (float32) of a uint8 (B, H, W, C) batch and, for a network with a LiDAR, its
+        float32 (B, N) LiDAR vectors."""
         if obs.dtype != torch.uint8:
             raise TypeError(f"observations must be uint8 camera frames, got {obs.dtype}")
         if tuple(obs.shape[1:]) != self.obs_shape:
             raise ValueError(f"observations of shape {tuple(obs.shape)}, expected (B, *{self.obs_shape})")
+        self._check_lidar(obs, lidar)
         x = obs.permute(0, 3, 1, 2).float() / 255.0
         if self.trunk_dtype is None:
-            return self.trunk(x)
+            return self._embed(x, lidar)
         with torch.autocast(x.device.type, dtype=self.trunk_dtype):
-            return self.trunk(x).float()
+            return self._embed(x, lidar).float()
 
-    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(logits (B, n) or Gaussian mean (B, d) in env units, V(o) (B,)) of a uint8 (B, H, W, C) batch."""
-        h = self.features(obs)
+    def _check_lidar(self, obs: torch.Tensor, lidar: torch.Tensor | None) -> None:
+        """A LiDAR batch is given exactly when the network has a LiDAR, float32 (B, N)."""
+        if not self.lidar_size:
+            if lidar is not None:
+                raise ValueError(f"this network's sensors {list(self.spec.sensors)} have no LiDAR, got a LiDAR batch")
+            return
+        if lidar is None:
+            sensors = list(self.spec.sensors)
+            raise ValueError(f"this network's sensors {sensors} need a LiDAR batch (B, {self.lidar_size})")
+        if lidar.dtype != torch.float32:
+            raise TypeError(f"LiDAR vectors must be float32, got {lidar.dtype}")
+        if tuple(lidar.shape) != (obs.shape[0], self.lidar_size):
+            raise ValueError(f"LiDAR batch of shape {tuple(lidar.shape)}, expected ({obs.shape[0]}, {self.lidar_size})")
+
+    def _embed(self, x: torch.Tensor, lidar: torch.Tensor | None) -> torch.Tensor:
+        """The trunk on scaled channels-first frames (and the LiDAR vectors)."""
+        if self.trunk is not None:
+            return self.trunk(x)
+        parts = [self.camera_embedder(x), self.lidar_embedder(lidar)]
+        return self.middleware(torch.cat(parts[::-1] if self._lidar_first else parts, dim=-1))
+
+    def forward(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(logits (B, n) or Gaussian mean (B, d) in env units, V(o) (B,)) of a uint8 (B, H, W, C) batch (and its
+        float32 (B, N) LiDAR batch for a network with a LiDAR)."""
+        h = self.features(obs, lidar)
         params = self.policy_head(h)
         if self.action_kind == "continuous":
             params = self.action_mid + self.action_half * params
@@ -188,32 +272,41 @@ class ActorCritic(nn.Module):
         """The most likely action: the argmax of the logits, or the Gaussian's mean."""
         return params.argmax(-1) if self.action_kind == "discrete" else params
 
-    def distribution(self, obs: torch.Tensor) -> Distribution:
+    def distribution(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> Distribution:
         """π(·|o): Categorical over action indices, or Independent(Normal) over actions in env units."""
-        return self._dist(self(obs)[0])
+        return self._dist(self(obs, lidar)[0])
 
     @torch.no_grad()
-    def act(self, obs: torch.Tensor, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(action, log π(action|o), V(o)) for a uint8 batch; deterministic = argmax / mean action."""
-        params, value = self(obs)
+    def act(
+        self, obs: torch.Tensor, deterministic: bool = False, lidar: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(action, log π(action|o), V(o)) for a uint8 batch (and its LiDAR batch); deterministic = argmax / mean
+        action."""
+        params, value = self(obs, lidar)
         dist = self._dist(params)
         action = self._mode(params) if deterministic else dist.sample()
         return action, dist.log_prob(action), value
 
-    def act_numpy(self, obs: np.ndarray, deterministic: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``act`` on a numpy uint8 (B, H, W, C) batch: (int64 (B,) or float32 (B, d) actions, float32 log-probs,
-        float32 values)."""
+    def act_numpy(
+        self, obs: np.ndarray, deterministic: bool = False, lidar: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``act`` on a numpy uint8 (B, H, W, C) batch (and, with a LiDAR, its float32 (B, N) batch): (int64 (B,) or
+        float32 (B, d) actions, float32 log-probs, float32 values)."""
         if obs.ndim != 4:
             raise ValueError(f"act_numpy takes a batch (B, H, W, C), got shape {obs.shape}")
         device = self.value_head.weight.device
-        action, logp, value = self.act(torch.from_numpy(np.ascontiguousarray(obs)).to(device), deterministic)
+        lidar_t = None if lidar is None else torch.from_numpy(np.ascontiguousarray(lidar)).to(device)
+        obs_t = torch.from_numpy(np.ascontiguousarray(obs)).to(device)
+        action, logp, value = self.act(obs_t, deterministic, lidar_t)
         action, logp, value = action.cpu(), logp.cpu(), value.cpu()
         action_np = action.numpy().astype(np.int64 if self.action_kind == "discrete" else np.float32)
         return action_np, logp.numpy().astype(np.float32), value.numpy().astype(np.float32)
 
-    def evaluate(self, obs: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def evaluate(
+        self, obs: torch.Tensor, actions: torch.Tensor, lidar: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(log π(actions|o), entropy of π(·|o), V(o)), each (B,), with gradients, for the trainer."""
-        params, value = self(obs)
+        params, value = self(obs, lidar)
         dist = self._dist(params)
         return dist.log_prob(actions), dist.entropy(), value
 
@@ -232,16 +325,21 @@ def bf16_is_fast(device: str = "cpu") -> bool:
 
 
 def build_policy(
-    obs_shape: tuple[int, int, int], action_space_spec: dict[str, Any], cfg: PolicyConfig | None = None
+    obs_shape: tuple[int, int, int],
+    action_space_spec: dict[str, Any],
+    cfg: PolicyConfig | None = None,
+    sensors: Sequence[str] | None = None,
 ) -> ActorCritic:
-    """An ActorCritic for ``{"kind": "discrete", "n": 10}`` or ``{"kind": "continuous", "low": [..], "high": [..]}``."""
+    """An ActorCritic for ``{"kind": "discrete", "n": 10}`` or ``{"kind": "continuous", "low": [..], "high": [..]}``,
+    for the model_metadata ``sensors`` (None: the front camera); ``obs_shape`` is the stacked camera observation
+    (``common.sensors.ObsSpec.camera_shape``)."""
     kind = action_space_spec.get("kind")
     if kind == "discrete":
-        return ActorCritic(obs_shape, "discrete", n_actions=int(action_space_spec["n"]), cfg=cfg)
+        return ActorCritic(obs_shape, "discrete", n_actions=int(action_space_spec["n"]), cfg=cfg, sensors=sensors)
     if kind == "continuous":
         low = tuple(float(v) for v in action_space_spec["low"])
         high = tuple(float(v) for v in action_space_spec["high"])
-        return ActorCritic(obs_shape, "continuous", action_low=low, action_high=high, cfg=cfg)
+        return ActorCritic(obs_shape, "continuous", action_low=low, action_high=high, cfg=cfg, sensors=sensors)
     raise ValueError(f"action_space_spec kind must be 'discrete' or 'continuous', got {kind!r}")
 
 
@@ -299,15 +397,16 @@ def load_policy(
     """A stored checkpoint's network, ready to act, and the checkpoint's metadata.
 
     ``run`` is the run's config or its id (its config.json is then read); ``actions`` the action space the network
-    acts in; ``checkpoint`` a version, ``"latest"`` or ``"best"``; ``frame`` the (height, width) of the camera frames
-    it takes (DeepRacer's by default; the frame stack comes from the run's hyperparameters). The network is in eval
-    mode, on the CPU.
+    acts in, whose ``sensor`` list gives its inputs; ``checkpoint`` a version, ``"latest"`` or ``"best"``; ``frame``
+    the (height, width) of the camera frames it takes (DeepRacer's by default; the frame stack comes from the run's
+    hyperparameters). The network is in eval mode, on the CPU.
     StoreKeyError if the run or checkpoint is missing; CheckpointError if the bytes are not a checkpoint.
     """
     if isinstance(run, str):
         run = runs.read_config(run)
     payload, meta = runs.load_checkpoint(run.run_id, checkpoint)
-    model = build_policy((*frame, run.hyperparams.stack_size), action_space_spec(actions), run.policy)
+    spec = observation_spec(actions.sensor, run.hyperparams.stack_size)
+    model = build_policy(spec.camera_shape(frame), action_space_spec(actions), run.policy, actions.sensor)
     model.load_state_dict(checkpoint_from_bytes(payload)[0])
     model.eval()
     return model, meta

@@ -21,7 +21,14 @@ values          float32   (T,)               V(o_t) under the behaviour policy
 next_values     float32   (T,)               V(o_{t+1}): the final observation's value for a
                                              truncated step and the last step, else V(o_{t+1})
 episode_id      int64     (T,)               worker-local episode number of each step
+lidar           float32   (T, N)             the LiDAR part of o_t (only with a LiDAR sensor)
+next_lidar      float32   (1, N)             the LiDAR part of o_T (only with a LiDAR sensor)
 ==============  ========  =================  =====================================================
+
+The camera part C is 1 (front camera) or 2 (stereo: left, right) channels per stacked frame; ``lidar`` and
+``next_lidar`` are present exactly when the run's sensors include a LiDAR (``common.sensors``: N = 64 for
+``LIDAR``, values in [0.15, 1]; N = 8 for ``SECTOR_LIDAR``, values in [0, 1]), so a camera-only segment is the
+same as before LiDAR existed (schema 1).
 """
 
 from __future__ import annotations
@@ -34,6 +41,8 @@ from typing import ClassVar, Self
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from common.sensors import LidarSpec
 
 SCHEMA_VERSION = 1
 MAX_HEADER_BYTES = 1 << 16
@@ -50,6 +59,8 @@ _ARRAY_DTYPES: dict[str, tuple[str, ...]] = {
     "next_values": ("float32",),
     "episode_id": ("int64",),
 }
+_LIDAR_DTYPES: dict[str, tuple[str, ...]] = {"lidar": ("float32",), "next_lidar": ("float32",)}
+"""The arrays of a run with a LiDAR sensor, in addition to ``_ARRAY_DTYPES``."""
 
 
 class ProtocolError(ValueError):
@@ -127,10 +138,13 @@ def decode_segment(
     run_id: str,
     obs_shape: tuple[int, ...],
     n_actions: int | None,
+    lidar: LidarSpec | None = None,
 ) -> Segment:
     """Validate stream-entry fields and rebuild the Segment; raise ProtocolError on anything malformed.
 
-    ``n_actions`` is the number of discrete actions (None for a continuous space of 2 values).
+    ``obs_shape`` is the stacked camera observation (H, W, C); ``n_actions`` the number of discrete actions (None for
+    a continuous space of 2 values); ``lidar`` the run's LiDAR (``ObsSpec.lidar``; None: the segment must have no
+    LiDAR arrays).
     """
     f = {(k.decode() if isinstance(k, bytes) else k): v for k, v in fields.items()}
     header = _header(f)
@@ -140,7 +154,13 @@ def decode_segment(
     if not isinstance(steps, int) or steps < 1:
         raise ProtocolError("bad_header", f"steps {steps!r}")
     arrays = {name: _array(f, header, name) for name in _ARRAY_DTYPES}
+    if lidar is not None:
+        arrays.update({name: _array(f, header, name, _LIDAR_DTYPES) for name in _LIDAR_DTYPES})
+    else:
+        _refuse_lidar(f, header)
     _check_shapes(arrays, steps, tuple(obs_shape), n_actions)
+    if lidar is not None:
+        _check_lidar(arrays, steps, lidar)
     return Segment(
         run_id=run_id,
         worker_id=_str(header, "worker_id"),
@@ -169,7 +189,9 @@ def _header(f: dict[str, bytes]) -> dict:
     return header
 
 
-def _array(f: dict[str, bytes], header: dict, name: str) -> np.ndarray:
+def _array(
+    f: dict[str, bytes], header: dict, name: str, dtypes: dict[str, tuple[str, ...]] = _ARRAY_DTYPES
+) -> np.ndarray:
     specs = header.get("arrays")
     if not isinstance(specs, dict):
         raise ProtocolError("bad_header", f"arrays {type(specs).__name__}")
@@ -178,7 +200,7 @@ def _array(f: dict[str, bytes], header: dict, name: str) -> np.ndarray:
     if not isinstance(spec, dict) or raw is None:
         raise ProtocolError("missing_array", name)
     dtype, shape = spec.get("dtype"), spec.get("shape")
-    if dtype not in _ARRAY_DTYPES[name]:
+    if dtype not in dtypes[name]:
         raise ProtocolError("bad_dtype", f"{name}: {dtype!r}")
     if not isinstance(shape, list) or not all(isinstance(v, int) and v >= 0 for v in shape):
         raise ProtocolError("bad_shape", f"{name}: {shape!r}")
@@ -186,6 +208,26 @@ def _array(f: dict[str, bytes], header: dict, name: str) -> np.ndarray:
     if len(raw) != dt.itemsize * math.prod(shape):
         raise ProtocolError("bad_length", f"{name}: {len(raw)} bytes for {shape} {dtype}")
     return np.frombuffer(raw, dtype=dt).reshape(shape).astype(dtype, copy=False)
+
+
+def _refuse_lidar(f: dict[str, bytes], header: dict) -> None:
+    """A run without a LiDAR takes no LiDAR arrays (they would be dropped unseen, or mean another run's sensors)."""
+    specs = header.get("arrays")
+    for name in _LIDAR_DTYPES:
+        if f"a:{name}" in f or (isinstance(specs, dict) and name in specs):
+            raise ProtocolError("bad_header", f"array {name} in a segment of a run without a LiDAR")
+
+
+def _check_lidar(a: dict[str, np.ndarray], steps: int, lidar: LidarSpec) -> None:
+    """Shapes (T, N) and (1, N), finite values within the LiDAR's range."""
+    for name, rows in (("lidar", steps), ("next_lidar", 1)):
+        if a[name].shape != (rows, lidar.size):
+            raise ProtocolError("bad_shape", f"{name}: {a[name].shape}, expected {(rows, lidar.size)}")
+        if not np.all(np.isfinite(a[name])):
+            raise ProtocolError("non_finite", name)
+        low, high = np.float32(lidar.low), np.float32(lidar.high)
+        if a[name].min() < low or a[name].max() > high:
+            raise ProtocolError("bad_lidar", f"{name}: {lidar.name} values outside [{lidar.low}, {lidar.high}]")
 
 
 def _check_shapes(a: dict[str, np.ndarray], steps: int, obs_shape: tuple, n_actions: int | None) -> None:

@@ -1,11 +1,13 @@
 """``racer export``: a run's checkpoint as an ONNX model a car can run without PyTorch.
 
-The ONNX graph takes what the camera pipeline produces, uint8 frames ``obs`` of shape (batch, 120, 160,
-stack_size), and returns ``action_probs`` (discrete: the policy's probabilities over the action space) or
+The ONNX graph takes what the camera pipeline produces, uint8 frames ``obs`` of shape (batch, 120, 160, C) with
+C = stack_size (front camera) or 2 × stack_size (stereo: left, right of each frame), and, when the run's sensors
+include a LiDAR, float32 ``lidar`` of shape (batch, N) (N = 64 for LIDAR, 8 for SECTOR_LIDAR:
+``common.sensors``). It returns ``action_probs`` (discrete: the policy's probabilities over the action space) or
 ``action_mean`` (continuous: the Gaussian's mean, in steering degrees and m/s), plus ``value``. The scaling to
 [0, 1] happens inside the graph, as in training, so the car feeds raw pixels. ``model_metadata.json`` (the
-action space, in DeepRacer's format) is written beside the model; the model's own metadata properties say which
-run and version it came from and how to build its input.
+action space and sensors, in DeepRacer's format) is written beside the model; the model's own metadata properties
+say which run and version it came from, its sensors and how to build its inputs.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import torch
 
 from common.action_space import ActionSpace
 from common.policy import ActorCritic, load_policy
+from common.sensors import LIDAR, SECTOR_LIDAR, STEREO_CAMERAS, ObsSpec
 from deploy.model_file import OBS_HEIGHT, OBS_WIDTH, stamp
 from model_store import RunStore
 
@@ -28,8 +31,8 @@ class _Exported(torch.nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        params, value = self.model(obs)
+    def forward(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        params, value = self.model(obs, lidar)
         if self.model.action_kind == "discrete":
             params = torch.softmax(params, dim=-1)
         return params, value
@@ -44,7 +47,12 @@ def export_onnx(runs: RunStore, run_id: str, checkpoint: str | int, out: str | P
     model, meta = load_policy(runs, run, actions, checkpoint)
     discrete = model.action_kind == "discrete"
     outputs = ["action_probs" if discrete else "action_mean", "value"]
-    example = torch.zeros((1, OBS_HEIGHT, OBS_WIDTH, run.hyperparams.stack_size), dtype=torch.uint8)
+    spec = model.spec
+    inputs = ["obs", "lidar"] if spec.lidar else ["obs"]
+    camera_shape = spec.camera_shape((OBS_HEIGHT, OBS_WIDTH))
+    example: tuple[torch.Tensor, ...] = (torch.zeros((1, *camera_shape), dtype=torch.uint8),)
+    if spec.lidar:
+        example += (torch.full((1, spec.lidar_size), spec.lidar.high, dtype=torch.float32),)
     out.parent.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings():
         # The TorchScript exporter: it needs no extra packages (the torch.export one needs onnxscript) and handles
@@ -52,11 +60,11 @@ def export_onnx(runs: RunStore, run_id: str, checkpoint: str | int, out: str | P
         warnings.simplefilter("ignore")
         torch.onnx.export(
             _Exported(model),
-            (example,),
+            example,
             str(out),
-            input_names=["obs"],
+            input_names=inputs,
             output_names=outputs,
-            dynamic_axes={"obs": {0: "batch"}, outputs[0]: {0: "batch"}, "value": {0: "batch"}},
+            dynamic_axes={**{name: {0: "batch"} for name in inputs}, outputs[0]: {0: "batch"}, "value": {0: "batch"}},
             opset_version=17,
             dynamo=False,
         )
@@ -65,10 +73,26 @@ def export_onnx(runs: RunStore, run_id: str, checkpoint: str | int, out: str | P
         "version": int(meta["version"]),
         "env_steps": meta.get("env_steps"),
         "stack_size": run.hyperparams.stack_size,
-        "obs_shape": [OBS_HEIGHT, OBS_WIDTH, run.hyperparams.stack_size],
+        "obs_shape": list(camera_shape),
         "action_kind": model.action_kind,
-        "preprocess": "grayscale (OpenCV BGR2GRAY), resize to 160x120 (INTER_AREA), uint8, oldest frame first",
+        "preprocess": _preprocess(spec),
+        "sensors": list(spec.sensors),
     }
+    if spec.lidar:
+        info["lidar_shape"] = [spec.lidar_size]
     stamp(out, info)
     (out.parent / "model_metadata.json").write_bytes(metadata)
     return {**info, "model": str(out), "model_metadata": str(out.parent / "model_metadata.json")}
+
+
+def _preprocess(spec: ObsSpec) -> str:
+    """How the car builds the model's inputs, in words (the runtime does it: ``deploy/runtime.py``)."""
+    camera = "grayscale (OpenCV BGR2GRAY), resize to 160x120 (INTER_AREA), uint8, oldest frame first"
+    if spec.camera == STEREO_CAMERAS:
+        camera = "left and right cameras each " + camera + ", left then right channel per frame"
+    lidar = {
+        LIDAR: "; lidar: the 64 ranges of a scan in metres clipped to [0.15, 1.0], float32",
+        SECTOR_LIDAR: "; lidar: the 64 ranges of a scan in 8 sectors of 8, 1.0 if a sector's nearest range is "
+        "below 0.5 m else 0.0, float32",
+    }
+    return camera + (lidar[spec.lidar.name] if spec.lidar else "")

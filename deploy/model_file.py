@@ -1,5 +1,5 @@
-"""An exported model file: the camera frame it takes, and the ``racer`` metadata inside it (onnx only, no torch:
-the on-car runtime reads it)."""
+"""An exported model file: the camera frame it takes, the ``racer`` metadata inside it and the observation it
+describes (onnx only, no torch: the on-car runtime reads it)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import onnx
 
 from common.config import FRAME_HEIGHT, FRAME_WIDTH
 from common.errors import UserError
+from common.sensors import FRONT_FACING_CAMERA, ObsSpec, observation_spec
 
 OBS_HEIGHT, OBS_WIDTH = FRAME_HEIGHT, FRAME_WIDTH
 """The camera frame the policy was trained on (``common.config``)."""
@@ -37,3 +38,13 @@ def model_info(path: str | Path) -> dict:
         if entry.key == "racer":
             return json.loads(entry.value)
     raise ExportError(f"{str(path)!r} is not a model exported by racer export (no 'racer' metadata)")
+
+
+def model_observation(info: dict) -> ObsSpec:
+    """The observation an exported model takes, from its ``racer`` metadata: its ``sensors`` (a model exported
+    before LiDAR has none: the front camera) and ``stack_size``. ExportError if they are not a list racer builds."""
+    sensors = info.get("sensors", [FRONT_FACING_CAMERA])
+    try:
+        return observation_spec(sensors, info.get("stack_size"))
+    except (TypeError, ValueError) as exc:
+        raise ExportError(f"the model's racer metadata: {exc}") from None

@@ -1,9 +1,12 @@
 """The on-car runtime: camera frames in, motor commands out, with an exported ONNX policy.
 
 Each frame goes through exactly the preprocessing of training (:func:`preprocess`: OpenCV's BGR→gray, then
-160×120), onto a frame stack like the rollout workers', through the ONNX model on one CPU thread, and the most
-likely action (DeepRacer's car acts greedily, as its evaluations do) is mapped through the vehicle calibration to
-servo and ESC outputs, which go to a :class:`CommandSink`.
+160×120; a stereo model takes the left and right frames as two channels, :func:`preprocess_stereo`), onto a frame
+stack like the rollout workers', through the ONNX model on one CPU thread, and the most likely action (DeepRacer's
+car acts greedily, as its evaluations do) is mapped through the vehicle calibration to servo and ESC outputs, which
+go to a :class:`CommandSink`. A model whose sensors include a LiDAR also takes, with each frame, the latest scan's
+64 ranges in metres, turned into its LiDAR input as in training (``common.sensors.lidar_from_ranges``); a LiDAR
+driver is a :class:`LidarSource`.
 
 A real motor driver is a CommandSink: a class with ``write(command: MotorCommand)`` and ``close()``, that sends
 ``command.steering_out`` to the steering servo and ``command.throttle_out`` to the ESC (for example through a
@@ -27,7 +30,8 @@ import onnxruntime as ort
 from common.action_space import ActionSpace
 from common.errors import UserError
 from common.framestack import FrameStack
-from deploy.model_file import OBS_HEIGHT, OBS_WIDTH, model_info
+from common.sensors import STEREO_CAMERAS, check_lidar, lidar_from_ranges
+from deploy.model_file import OBS_HEIGHT, OBS_WIDTH, model_info, model_observation
 from deploy.vehicle import MotorCommand, VehicleCalibration, motor_command
 
 
@@ -48,6 +52,20 @@ def preprocess(frame: np.ndarray) -> np.ndarray:
     if frame.shape != (OBS_HEIGHT, OBS_WIDTH):
         frame = cv2.resize(frame, (OBS_WIDTH, OBS_HEIGHT), interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(frame, dtype=np.uint8)
+
+
+def preprocess_stereo(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """The stereo pair as a stereo policy saw it in training: (120, 160, 2) gray uint8, left then right (DeepRacer's
+    ``DualCamera``: ``np.stack((left_img, right_img), axis=2)``), each camera preprocessed like the front camera."""
+    return np.stack((preprocess(left), preprocess(right)), axis=-1)
+
+
+class LidarSource(Protocol):
+    """The car's LiDAR: ``read()`` returns the latest scan, ``LIDAR_SAMPLES`` (64) ranges in metres in the scan's
+    order (the simulated scanner's, from -150° to +150°), infinite where nothing returned."""
+
+    def read(self) -> np.ndarray:
+        """The latest scan."""
 
 
 class CommandSink(Protocol):
@@ -80,7 +98,7 @@ class CsvSink:
 
 
 class Policy:
-    """An exported model and its action space: a frame stack in, the greedy action out."""
+    """An exported model and its action space: a frame stack (and a LiDAR vector) in, the greedy action out."""
 
     def __init__(self, model: str | Path, model_metadata: str | Path | None = None) -> None:
         model = Path(model)
@@ -95,11 +113,27 @@ class Policy:
         options.intra_op_num_threads = 1  # one core of the car's CPU; the camera and the rest take the others
         options.inter_op_num_threads = 1
         self.session = ort.InferenceSession(str(model), options, providers=["CPUExecutionProvider"])
-        self.stack_size = int(self.info["stack_size"])
+        self.spec = model_observation(self.info)
+        """The sensors and observation the model takes (``common.sensors.ObsSpec``)."""
+        self.stack_size = self.spec.stack_size
+        self.obs_shape = self.spec.camera_shape((OBS_HEIGHT, OBS_WIDTH))
 
-    def act(self, obs: np.ndarray) -> tuple[int | None, float, float]:
-        """(action index or None, steering degrees, speed m/s) for one (120, 160, stack) uint8 observation."""
-        params = self.session.run(None, {"obs": obs[None]})[0][0]
+    def act(self, obs: np.ndarray, lidar: np.ndarray | None = None) -> tuple[int | None, float, float]:
+        """(action index or None, steering degrees, speed m/s) for one (120, 160, C) uint8 observation and, for a
+        model with a LiDAR, its float32 (N,) LiDAR vector (``common.sensors.lidar_from_ranges``)."""
+        if obs.shape != self.obs_shape or obs.dtype != np.uint8:
+            raise DeployError(f"an observation of {obs.shape} {obs.dtype}: the model takes {self.obs_shape} uint8")
+        feed = {"obs": obs[None]}
+        if self.spec.lidar:
+            if lidar is None:
+                raise DeployError(f"the model's sensors {list(self.spec.sensors)} need a LiDAR vector")
+            problem = check_lidar(self.spec.lidar, lidar)
+            if problem:
+                raise DeployError(f"a {self.spec.lidar.name} vector of {problem}")
+            feed["lidar"] = lidar[None]
+        elif lidar is not None:
+            raise DeployError(f"the model's sensors {list(self.spec.sensors)} have no LiDAR")
+        params = self.session.run(None, feed)[0][0]
         if self.actions.discrete:
             index = int(np.argmax(params))
             return (index, *self.actions.command(index))
@@ -126,13 +160,39 @@ def open_source(source: str) -> cv2.VideoCapture:
 
 
 def drive(
-    policy: Policy, source: str, calibration: VehicleCalibration, sink: CommandSink, max_frames: int | None = None
+    policy: Policy,
+    source: str,
+    calibration: VehicleCalibration,
+    sink: CommandSink,
+    max_frames: int | None = None,
+    *,
+    right_source: str | None = None,
+    lidar: LidarSource | None = None,
 ) -> DriveResult:
-    """Run the loop until the source ends (or ``max_frames``); every frame gets one command."""
+    """Run the loop until the source ends (or ``max_frames``); every frame gets one command.
+
+    ``source`` is the camera (the left one of a stereo model), ``right_source`` the right camera of a stereo model,
+    ``lidar`` the LiDAR of a model with one; each is required exactly when the model's sensors need it."""
     cv2.setNumThreads(1)
+    stereo = policy.spec.camera == STEREO_CAMERAS
+    captures: list[cv2.VideoCapture] = []
     try:
-        capture = open_source(source)
+        if stereo != (right_source is not None):
+            raise DeployError(
+                f"the model's camera is {policy.spec.camera}: "
+                + ("give the right camera too" if stereo else "it takes no right camera")
+            )
+        if (policy.spec.lidar is not None) != (lidar is not None):
+            raise DeployError(
+                f"the model's sensors are {list(policy.spec.sensors)}: "
+                + ("give a LiDAR" if policy.spec.lidar else "it takes no LiDAR")
+            )
+        captures.append(open_source(source))
+        if right_source is not None:
+            captures.append(open_source(right_source))
     except DeployError:
+        for capture in captures:
+            capture.release()
         sink.close()  # nothing will be written: release the output too
         raise
     stack = FrameStack(policy.stack_size)
@@ -141,19 +201,21 @@ def drive(
     try:
         while max_frames is None or frame_no < max_frames:
             t0 = time.perf_counter()
-            ok, frame = capture.read()
-            if not ok:
+            frames = [capture.read() for capture in captures]
+            if not all(ok for ok, _ in frames):
                 break
-            gray = preprocess(frame)[..., None]
-            obs = stack.reset(gray) if frame_no == 0 else stack.push(gray)
+            camera = preprocess_stereo(frames[0][1], frames[1][1]) if stereo else preprocess(frames[0][1])[..., None]
+            obs = stack.reset(camera) if frame_no == 0 else stack.push(camera)
+            vector = lidar_from_ranges(policy.spec.lidar.name, lidar.read()) if lidar is not None else None
             t1 = time.perf_counter()
-            action, steering, speed = policy.act(obs)
+            action, steering, speed = policy.act(obs, vector)
             infer.append(time.perf_counter() - t1)
             sink.write(motor_command(calibration, frame_no, action, steering, speed))
             loop.append(time.perf_counter() - t0)
             frame_no += 1
     finally:
-        capture.release()
+        for capture in captures:
+            capture.release()
         sink.close()
     if frame_no == 0:
         raise DeployError(f"no frame could be read from {source!r}")

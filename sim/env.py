@@ -25,8 +25,12 @@ from common.action_space import (
     load_action_space,
 )
 from common.config import FRAME_HEIGHT, FRAME_WIDTH, EnvConfig
+from common.errors import UserError
+from common.sensors import CAMERA_KEY, LIDAR_KEY, ObsSpec, lidar_from_ranges, observation_spec
 from sim.augment import augment_frame, needs_color
-from sim.camera import CameraSpec, GroundCamera, MujocoCamera
+from sim.camera import CameraSpec, GroundCamera, MujocoCamera, StereoGroundCamera
+from sim.lidar import Lidar
+from sim.objects import RaceObjects, WorldObject, as_boxes, start_pose
 from sim.physics import CarPhysics
 from sim.reward import RewardFunction, RewardFunctionError, example_path, load_reward_function
 from sim.task import RacingTask, Status, StepResult
@@ -42,7 +46,7 @@ from sim.texture import (
 )
 from sim.track import Track, load_track
 from sim.views import top_down
-from sim.world import CONTROL_HZ, build_model
+from sim.world import CONTROL_HZ, build_model, object_slot_geoms, set_objects
 
 OBS_SHAPE = (FRAME_HEIGHT, FRAME_WIDTH, 1)
 
@@ -70,9 +74,13 @@ class RacerEnv(gym.Env):
         self.reward_fn: RewardFunction = load_reward_function(
             cfg.reward_fn or example_path("default"), time_limit_s=cfg.reward_time_limit_s
         )
+        self.obs_spec: ObsSpec = observation_spec(self.actions.sensor, 1)
+        self.race = RaceObjects(self.track, cfg.race)
+        self.objects: list[WorldObject] = []
+        self._box_colors: np.ndarray | None = None
         self._build_world()
         self.task = RacingTask(self.track, road=RoadMask(self.track, self.frame))
-        self.observation_space = gym.spaces.Box(0, 255, OBS_SHAPE, np.uint8)
+        self.observation_space = self._observation_space()
         self.action_space = self._gym_action_space()
         self._episodes = 0
         self._gain: np.ndarray | None = None
@@ -86,14 +94,34 @@ class RacerEnv(gym.Env):
         self.palette: Palette = DEEPRACER_PALETTE
         self.texture = colorize(self._layers, self.palette)
         mujoco_cam = cfg.camera == "mujoco"
-        self.model = build_model(self.frame, self.texture if mujoco_cam else None, self.palette.sky)
+        slots = self.race.slots
+        self.model = build_model(self.frame, self.texture if mujoco_cam else None, self.palette.sky, object_slots=slots)
         self.physics = CarPhysics(self.model)
         self.physics.set_calibration(cfg.car)
         self.camera_spec = CameraSpec()
+        stereo = self.obs_spec.frame_channels == 2
+        if mujoco_cam and stereo:
+            raise UserError("camera 'mujoco' renders one camera, not STEREO_CAMERAS: use camera 'ground'")
         if mujoco_cam:
-            self.camera: GroundCamera | MujocoCamera = MujocoCamera(self.model, self.physics.data, self.camera_spec)
+            self.camera: GroundCamera | MujocoCamera | StereoGroundCamera = MujocoCamera(
+                self.model, self.physics.data, self.camera_spec
+            )
+        elif stereo:
+            self.camera = StereoGroundCamera(self.frame, self.texture, self.camera_spec, self.palette.sky)
         else:
             self.camera = GroundCamera(self.frame, self.texture, self.camera_spec, self.palette.sky)
+        self.lidar = Lidar(self.model, self.physics.data) if self.obs_spec.lidar else None
+        # The MuJoCo scene holds the objects only where something looks at it: the LiDAR's rays, MuJoCo's camera.
+        self._slot_geoms = object_slot_geoms(self.model) if slots and (self.lidar or mujoco_cam) else None
+
+    def _observation_space(self) -> gym.spaces.Space:
+        camera = gym.spaces.Box(0, 255, self.obs_spec.frame_shape((FRAME_HEIGHT, FRAME_WIDTH)), np.uint8)
+        lidar = self.obs_spec.lidar
+        if lidar is None:
+            return camera
+        return gym.spaces.Dict(
+            {CAMERA_KEY: camera, LIDAR_KEY: gym.spaces.Box(lidar.low, lidar.high, (lidar.size,), np.float32)}
+        )
 
     def _gym_action_space(self) -> gym.spaces.Space:
         if self.actions.discrete:
@@ -113,11 +141,18 @@ class RacerEnv(gym.Env):
         reverse = bool(options.get("reverse", drawn))
         index = self._start_index(reverse, options.get("start_index"))
         self._randomize(rng)
+        self.objects = self.race.reset(rng, reverse)
         pose = self.task.start_pose(index, reverse)
+        if self.objects and options.get("start_index") is None:
+            # A training start within 1 m of an object moves to the other lane (simapp RolloutCtrl.
+            # _get_car_start_model_state); an evaluation (a pinned start) starts on the centre line regardless.
+            pose = start_pose(self.track, reverse, self.task.start_distance(index, reverse), self.objects)
         self.physics.reset(pose)
+        self._place_objects()
         self.task.begin(index, reverse)
         self._command = (0.0, 0.0)
-        self._last = self.task.observe(pose, self.physics.wheel_positions(), True, 0.0, self._command, False)
+        wheels = self.physics.wheel_positions()
+        self._last = self.task.observe(pose, wheels, True, 0.0, self._command, False, self.objects)
         self._episodes += 1
         return self._observe(), self._info(self._last, 0.0)
 
@@ -132,7 +167,14 @@ class RacerEnv(gym.Env):
         self.physics.command(*self._noisy(command))
         self.physics.step()
         ph = self.physics
-        result = self.task.observe(ph.pose, ph.wheel_positions(), ph.upright, ph.time, requested)
+        self.objects = self.race.step()
+        self._place_objects()
+        crashed = bool(self.objects) and self.race.crashed(
+            ph.pose, self._last.params["progress"], self.task.start_fraction
+        )
+        result = self.task.observe(
+            ph.pose, ph.wheel_positions(), ph.upright, ph.time, requested, objects=self.objects, crashed=crashed
+        )
         reward = self.reward_fn(result.params, step=result.params["steps"])
         truncated = not result.terminated and self.task.steps >= self.config.time_limit_steps
         status = Status.TIME_UP if truncated else result.status
@@ -186,17 +228,43 @@ class RacerEnv(gym.Env):
                 texture = add_noise_texture(texture, dr.texture, rng)
             self.texture = texture
             self.camera.set_surface(texture, self.palette.sky)
+        if dr.track_color and self.race.slots:
+            # Obstacles and bots change colour with the track (DeepRacer's default box is brown, its bots grey):
+            # a policy must not learn to avoid one colour.
+            self._box_colors = rng.integers(30, 226, (self.race.slots, 3)).astype(np.uint8)
         self._gain = _lighting_gain(rng, dr.lighting) if dr.lighting else None
 
-    def _observe(self) -> np.ndarray:
+    def _place_objects(self) -> None:
+        """Move the MuJoCo scene's object slots to this step's objects (after every physics reset too: it
+        puts the slots back where they were compiled)."""
+        if self._slot_geoms is not None:
+            set_objects(self.model, self.physics.data, as_boxes(self.objects), slots=self._slot_geoms)
+
+    def _observe(self) -> np.ndarray | dict[str, np.ndarray]:
+        pose = self.physics.pose
+        frame = self._camera_frame(pose)
+        if self.lidar is None:
+            return frame
+        ranges = self.lidar.scan(pose, self.np_random)
+        return {CAMERA_KEY: frame, LIDAR_KEY: lidar_from_ranges(self.obs_spec.lidar.name, ranges)}
+
+    def _camera_frame(self, pose) -> np.ndarray:
+        """(H, W, 1) or, stereo, (H, W, 2) uint8: the render with this step's objects, the episode's lighting and
+        the frame augmentations (the same draw for both views of a stereo pair)."""
         aug = self.config.randomization.augment
-        color = needs_color(aug)
-        frame = self.camera.render(self.physics.pose, color=color)
+        boxes = as_boxes(self.objects) if self.objects else None
+        if isinstance(self.camera, StereoGroundCamera):
+            frame = self.camera.render(pose, boxes=boxes, box_colors=self._box_colors)
+        else:
+            frame = self.camera.render(pose, color=needs_color(aug), boxes=boxes, box_colors=self._box_colors)
         if self._gain is not None:
             gain = self._gain[..., None] if frame.ndim == 3 else self._gain
             frame = cv2.convertScaleAbs(frame.astype(np.float32) * gain)
-        frame = augment_frame(frame, aug, self.np_random)
-        return frame[..., None]
+        if frame.ndim == 3 and frame.shape[2] == 2:
+            seed = int(self.np_random.integers(2**63))
+            views = [augment_frame(frame[..., k], aug, np.random.default_rng(seed)) for k in range(2)]
+            return np.stack(views, axis=2)
+        return augment_frame(frame, aug, self.np_random)[..., None]
 
     def _info(self, result: StepResult, reward: float, status: str | None = None) -> dict:
         return {

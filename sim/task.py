@@ -11,11 +11,12 @@ from __future__ import annotations
 import bisect
 import math
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from sim.objects import WorldObject, object_params
 from sim.physics import FRONT_POINT_M, Pose
 from sim.track import Segment, Track, nearest_segment, polyline_segments
 
@@ -100,6 +101,18 @@ class RacingTask:
         a, b = track.center[i], track.center[i + 1]
         return Pose(float(a[0]), float(a[1]), math.atan2(b[1] - a[1], b[0] - a[0]))
 
+    def start_distance(self, index: int, reverse: bool) -> float:
+        """Arc length of waypoint ``index`` along the centre line in the direction of travel, metres."""
+        track = self._reversed_track if reverse else self.track
+        return float(track.cumulative[index % (len(track.center) - 1)])
+
+    @property
+    def start_fraction(self) -> float:
+        """Where this episode started, as a fraction of the lap from the start line in the direction of travel
+        (the simapp's ``start_ndist``)."""
+        st = self.state
+        return 0.0 if st is None else st.start_s / st.track.length
+
     def start_indices(self, reverse: bool) -> int:
         """How many waypoints an episode may start from (open tracks: those in the first 70 %)."""
         track = self._reversed_track if reverse else self.track
@@ -125,8 +138,14 @@ class RacingTask:
         sim_time: float,
         command: tuple[float, float],
         count_step: bool = True,
+        objects: Sequence[WorldObject] = (),
+        crashed: bool = False,
     ) -> StepResult:
-        """Params and status after a step (or at the start with ``count_step=False``)."""
+        """Params and status after a step (or at the start with ``count_step=False``).
+
+        ``objects`` are the obstacles and bot cars of an object-avoidance or head-to-bot race (their params are
+        the simapp's, ``sim/objects.py: object_params``); ``crashed`` is the env's verdict of the crash rule
+        (``sim/objects.py: collided_object`` and, for a bot, ``car_at_fault``), which ends the episode."""
         st = self.state
         assert st is not None, "begin() an episode first"
         track = st.track
@@ -142,7 +161,10 @@ class RacingTask:
         on = self._road(wheels)
         progress = self._progress(st, s)
         params = self._params(st, pose, front, proj, on, progress, sim_time, command)
-        status = self._status(st, on, upright, progress) if count_step else Status.PREPARE
+        if objects:
+            params.update(object_params(self.track, pose, objects, st.reversed))
+        params["is_crashed"] = bool(crashed)
+        status = self._status(st, on, upright, progress, crashed) if count_step else Status.PREPARE
         return StepResult(params, status, status in TERMINAL)
 
     def _progress(self, st: EpisodeState, s: float) -> float:
@@ -153,11 +175,15 @@ class RacingTask:
             return 100.0
         return 100.0 * st.travelled / max(track.length - st.start_s, 1e-6)
 
-    def _status(self, st: EpisodeState, on: np.ndarray, upright: bool, progress: float) -> str:
+    def _status(self, st: EpisodeState, on: np.ndarray, upright: bool, progress: float, crashed: bool) -> str:
+        # The simapp's reset rules, in its order (markov/reset/utils.py: construct_reset_rules_manager): lap
+        # complete, immobilized, off track, crashed, reversed; racer's immobilized test needs the window below.
         if progress >= 100.0:
             return Status.LAP_COMPLETE
         if not on.any():
             return Status.OFF_TRACK
+        if crashed:
+            return Status.CRASHED
         if not upright:
             return Status.IMMOBILIZED
         if len(st.history) > REVERSED_WINDOW_STEPS:

@@ -287,3 +287,207 @@ def test_ground_camera_is_fast(camera: GroundCamera, centre_pose: Pose) -> None:
     for k in range(200):
         camera.render(Pose(centre_pose.x + 0.001 * k, centre_pose.y, centre_pose.yaw))
     assert time.perf_counter() - start < 2.0
+
+
+# --- objects (boxes) and the stereo pair ----------------------------------------------------------------
+
+WHITE = np.array([[255.0, 255.0, 255.0]])
+
+
+def box_ahead(pose: Pose, forward: float, left: float = 0.0, yaw: float = 0.0, size=(0.4, 0.3, 0.25)) -> list[float]:
+    """[x, y, yaw, length, width, height] of a box centred ``forward``/``left`` metres from base_link, in the car's
+    frame turned by ``yaw``."""
+    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+    return [pose.x + c * forward - s * left, pose.y + s * forward + c * left, pose.yaw + yaw, *size]
+
+
+def raycast_mask(spec: CameraSpec, pose: Pose, boxes: np.ndarray) -> np.ndarray:
+    """(H, W) pixels whose centre ray hits one of ``boxes``: an independent per-pixel 3D ray-box test."""
+    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+    car = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    rays = spec.rays().reshape(-1, 3) @ car.T
+    origin = np.array([pose.x, pose.y, 0.0]) + car @ spec.position
+    hit = np.zeros(len(rays), bool)
+    for x, y, yaw, length, width, height in boxes:
+        cb, sb = math.cos(yaw), math.sin(yaw)
+        to_box = np.array([[cb, sb, 0.0], [-sb, cb, 0.0], [0.0, 0.0, 1.0]])  # world -> box frame
+        o = to_box @ (origin - (x, y, 0.0))
+        d = rays @ to_box.T
+        lo, hi = np.array([-length / 2, -width / 2, 0.0]), np.array([length / 2, width / 2, height])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (lo - o) / d, (hi - o) / d
+        enter = np.nanmax(np.minimum(t1, t2), axis=1)
+        leave = np.nanmin(np.maximum(t1, t2), axis=1)
+        hit |= (enter <= leave) & (leave > 0)
+    return hit.reshape(spec.height, spec.width)
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max(1, (a | b).sum()))
+
+
+def test_zero_boxes_render_is_unchanged(camera: GroundCamera, centre_pose: Pose) -> None:
+    for color in (False, True):
+        plain = camera.render(centre_pose, color=color)
+        np.testing.assert_array_equal(camera.render(centre_pose, color=color, boxes=None), plain)
+        np.testing.assert_array_equal(camera.render(centre_pose, color=color, boxes=np.zeros((0, 6))), plain)
+        # Boxes out of view (behind, far to the side, beyond the sky distance) draw nothing.
+        hidden = np.array(
+            [box_ahead(centre_pose, -1.0), box_ahead(centre_pose, 0.2, 3.0), box_ahead(centre_pose, 60.0)]
+        )
+        np.testing.assert_array_equal(camera.render(centre_pose, color=color, boxes=hidden), plain)
+
+
+def test_box_ahead_covers_the_pixels_its_rays_hit(camera: GroundCamera, centre_pose: Pose) -> None:
+    boxes = np.array([box_ahead(centre_pose, 1.0, 0.1, yaw=0.4)])
+    plain = camera.render(centre_pose)
+    img = camera.render(centre_pose, boxes=boxes, box_colors=WHITE)
+    drawn = img != plain
+    expected = raycast_mask(camera.spec, centre_pose, boxes)
+    assert expected.sum() > 150  # about 0.4 m at 1 m: a sizeable patch
+    assert iou(drawn, expected) > 0.9, iou(drawn, expected)
+    # Only there, and brighter than the road: white shaded between 0.65 and 1.
+    assert not (drawn & ~cv2.dilate(expected.astype(np.uint8), np.ones((3, 3))).astype(bool)).any()
+    assert img[expected & drawn].min() >= 0.65 * 255 - 1
+    # Two side faces are seen (the box is turned), in two different shades: its edge shows.
+    assert np.unique(img[expected & drawn]).size >= 2
+
+
+def test_colour_render_draws_boxes_in_their_colour(camera: GroundCamera, centre_pose: Pose) -> None:
+    boxes = np.array([box_ahead(centre_pose, 0.8)])
+    red = np.array([[220.0, 30.0, 30.0]])
+    rgb = camera.render(centre_pose, color=True, boxes=boxes, box_colors=red)
+    mask = raycast_mask(camera.spec, centre_pose, boxes)
+    r, g, b = (rgb[mask][:, i].astype(int) for i in range(3))
+    assert np.median(r) > 140 and np.median(g) < 40 and np.median(b) < 40
+    gray = camera.render(centre_pose, boxes=boxes, box_colors=red)
+    assert abs_diff(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), gray)[mask].max() <= 2
+
+
+def test_box_hidden_behind_another_is_not_drawn_over_it(camera: GroundCamera, centre_pose: Pose) -> None:
+    near = box_ahead(centre_pose, 0.8, size=(0.3, 0.6, 0.4))
+    far = box_ahead(centre_pose, 1.8, size=(0.3, 0.3, 0.3))  # wholly behind the near one
+    tall = box_ahead(centre_pose, 1.8, size=(0.3, 0.3, 1.2))  # behind it, but rising above it
+    colors = np.array([[255.0, 255.0, 255.0], [0.0, 0.0, 0.0]])
+    alone = camera.render(centre_pose, boxes=np.array([near]), box_colors=colors[:1])
+    for order in ([near, far], [far, near]):
+        cols = colors if order[0] is near else colors[::-1]
+        np.testing.assert_array_equal(camera.render(centre_pose, boxes=np.array(order), box_colors=cols), alone)
+    both = camera.render(centre_pose, boxes=np.array([tall, near]), box_colors=colors[::-1])
+    near_mask = raycast_mask(camera.spec, centre_pose, np.array([near]))
+    tall_mask = raycast_mask(camera.spec, centre_pose, np.array([tall])) & ~near_mask
+    np.testing.assert_array_equal(both[near_mask], alone[near_mask])  # the near box is whole
+    assert tall_mask.sum() > 20 and np.median(both[tall_mask]) == 0  # the far one shows above it
+
+
+def test_box_straddling_the_camera_is_clipped(camera: GroundCamera, centre_pose: Pose) -> None:
+    """A long box beside the car, from behind the camera to ahead of it: its faces are clipped at the near plane."""
+    boxes = np.array([box_ahead(centre_pose, 0.3, 0.35, size=(1.6, 0.2, 0.3))])
+    drawn = camera.render(centre_pose, boxes=boxes, box_colors=WHITE) != camera.render(centre_pose)
+    expected = raycast_mask(camera.spec, centre_pose, boxes)
+    assert expected[:, : W // 2].sum() > 1000  # fills much of the left of the image
+    assert iou(drawn, expected) > 0.9, iou(drawn, expected)
+
+
+def test_ground_and_mujoco_cameras_agree_on_boxes(env: RacerEnv) -> None:
+    from sim.physics import CarPhysics
+    from sim.world import build_model, set_objects
+
+    model = build_model(env.frame, env.texture, DEEPRACER_PALETTE.sky, object_slots=4)
+    physics = CarPhysics(model)
+    env.reset(seed=0, options=pinned(3))
+    physics.reset(env.physics.pose)
+    try:
+        reference = MujocoCamera(model, physics.data)
+    except RenderError as exc:
+        pytest.skip(str(exc))
+    try:
+        pose = physics.pose
+        boxes = np.array(
+            [
+                box_ahead(pose, 1.0, 0.15, 0.3),
+                box_ahead(pose, 2.0, -0.4, 0.8, (0.4, 0.3, 0.5)),
+                box_ahead(pose, 0.6, 0.4),
+            ]
+        )
+        set_objects(model, physics.data, np.zeros((0, 6)))
+        ref_plain = reference.render()
+        set_objects(model, physics.data, boxes, rgba=np.tile([0.0, 0.0, 0.0, 1.0], (3, 1)))  # unlike sky and road
+        ref_boxes = reference.render()
+    finally:
+        reference.close()
+    ground = GroundCamera(env.frame, env.texture)
+    fast_plain, fast_boxes = ground.render(pose), ground.render(pose, boxes=boxes, box_colors=np.zeros((3, 3)))
+    ref_mask = abs_diff(ref_boxes, ref_plain) > 8
+    fast_mask = abs_diff(fast_boxes, fast_plain) > 8
+    assert ref_mask.sum() > 1000
+    assert iou(ref_mask, fast_mask) > 0.85, iou(ref_mask, fast_mask)
+    assert np.median(ref_boxes[ref_mask & fast_mask]) <= 2 and np.median(fast_boxes[ref_mask & fast_mask]) <= 2
+
+
+# --- stereo ---------------------------------------------------------------------------------------------
+
+
+def test_stereo_specs_are_the_urdf_pair() -> None:
+    from sim.camera import STEREO_BASELINE_M, stereo_specs
+
+    assert STEREO_BASELINE_M == 0.06  # zed_camera_joint_leftcam / _rightcam at y = ±0.03 (deepracer_stereo_cam.urdf)
+    left, right = stereo_specs(CameraSpec())
+    assert (left.left_m, right.left_m) == (0.03, -0.03)
+    assert left.position[1] - right.position[1] == pytest.approx(0.06)
+    for spec in (left, right):
+        assert spec == CameraSpec(left_m=spec.left_m)  # otherwise the single camera's pose
+
+
+def test_stereo_is_two_gray_views_left_first(env: RacerEnv, centre_pose: Pose) -> None:
+    from sim.camera import StereoGroundCamera, stereo_specs
+
+    stereo = StereoGroundCamera(env.frame, env.texture, sky_rgb=DEEPRACER_PALETTE.sky)
+    boxes = np.array([box_ahead(centre_pose, 0.9, 0.1, 0.3), box_ahead(centre_pose, 2.0, -0.3)])
+    for bx in (None, boxes):
+        img = stereo.render(centre_pose, boxes=bx)
+        assert img.shape == (H, W, 2) and img.dtype == np.uint8
+        for channel, spec in enumerate(stereo_specs(CameraSpec())):
+            single = GroundCamera(env.frame, env.texture, spec, DEEPRACER_PALETTE.sky).render(centre_pose, boxes=bx)
+            # The same as a single camera at that pose (box edges may round differently by a pixel here and there).
+            assert (img[..., channel] != single).sum() <= (0 if bx is None else 10)
+    assert abs_diff(img[..., 0], img[..., 1]).mean() > 1  # 6 cm apart: the views differ
+    with pytest.raises(ValueError, match="gray"):
+        stereo.render(centre_pose, color=True)
+
+
+def test_stereo_disparity_of_a_box_at_known_distance(env: RacerEnv, centre_pose: Pose) -> None:
+    from sim.camera import STEREO_BASELINE_M, StereoGroundCamera
+
+    stereo = StereoGroundCamera(env.frame, env.texture)
+    spec = CameraSpec()
+    plain = stereo.render(centre_pose)
+    for face_m in (0.35, 0.6, 1.0):  # distance of the box's front face ahead of the camera
+        boxes = np.array([box_ahead(centre_pose, spec.forward_m + face_m + 0.1, size=(0.2, 0.3, 0.4))])
+        img = stereo.render(centre_pose, boxes=boxes, box_colors=WHITE)
+        # A row just above the horizon sees the box at every distance; its ray meets the face at depth (along the
+        # optical axis) face / (cos p - v / f sin p), v the row's offset from the image centre.
+        row = 47
+        v = row - (H - 1) / 2
+        p = math.radians(spec.pitch_deg)
+        depth = face_m / (math.cos(p) - v / spec.focal_px * math.sin(p))
+        edges = []
+        for ch in (0, 1):
+            cols = np.flatnonzero(img[row, :, ch] != plain[row, :, ch])
+            edges.append((cols.min() + cols.max()) / 2)  # the face's centre column
+        expected = spec.focal_px * STEREO_BASELINE_M / depth
+        assert edges[0] - edges[1] == pytest.approx(expected, abs=0.6), (face_m, edges, expected)
+
+
+def test_stereo_with_boxes_is_fast(env: RacerEnv, centre_pose: Pose) -> None:
+    from sim.camera import StereoGroundCamera
+
+    stereo = StereoGroundCamera(env.frame, env.texture)
+    boxes = np.array(
+        [box_ahead(centre_pose, d, lat) for d, lat in [(1, 0.1), (2, -0.4), (0.6, 0.35), (-1, 0), (4, 1.5), (-3, 0)]]
+    )
+    stereo.render(centre_pose, boxes=boxes)
+    start = time.perf_counter()
+    for k in range(200):
+        stereo.render(Pose(centre_pose.x + 0.001 * k, centre_pose.y, centre_pose.yaw), boxes=boxes)
+    assert time.perf_counter() - start < 4.0

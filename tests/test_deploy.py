@@ -8,6 +8,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from unittest import mock
 
 import cv2
 import numpy as np
@@ -20,9 +21,10 @@ from common.car_calibration import CarCalibration
 from common.config import EnvConfig
 from common.framestack import FrameStack
 from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_to_bytes, load_policy
+from common.sensors import lidar_from_ranges, observation_spec
 from deploy.export import export_onnx
-from deploy.model_file import ExportError, model_info
-from deploy.runtime import Policy, preprocess
+from deploy.model_file import ExportError, model_info, model_observation
+from deploy.runtime import CsvSink, DeployError, Policy, drive, preprocess, preprocess_stereo
 from deploy.vehicle import (
     VehicleCalibration,
     VehicleCalibrationError,
@@ -228,3 +230,143 @@ def test_the_runtime_needs_no_torch():
     """A car carries onnxruntime and OpenCV, not PyTorch: importing the runtime must not import torch."""
     code = "import sys, deploy.runtime, deploy.vehicle; sys.exit('torch' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+# --- other sensors: stereo cameras and LiDAR (common.sensors) -----------------------------------------------------
+
+
+def make_sensor_run(tmp: Path, run_id: str, sensors: list[str], stack_size: int = 1) -> RunStore:
+    """``make_run`` for another sensor list: the run's model_metadata.json names the sensors, and its checkpoint is a
+    seeded network for them with a scaled-up head (choices that differ clearly from input to input)."""
+    (tmp / "hp.json").write_text(json.dumps({"stack_size": stack_size}))
+    run, files = build_run(run_id, track="reinvent_base", hyperparams=str(tmp / "hp.json"))
+    actions = ActionSpace.model_validate_json(files["model_metadata.json"]).model_copy(update={"sensor": sensors})
+    files["model_metadata.json"] = actions.to_json().encode()
+    runs = RunStore(open_store(str(tmp / "store")))
+    for name, data in files.items():
+        runs.write_file(run_id, name, data)
+    runs.write_file(run_id, "config.json", run.model_dump_json())
+    torch.manual_seed(4)
+    shape = observation_spec(sensors, stack_size).camera_shape((120, 160))
+    with mock.patch.object(torch.nn.init, "orthogonal_", lambda tensor, gain=1.0: tensor):  # no QR of 11520×512
+        model = build_policy(shape, action_space_spec(actions), run.policy, sensors)
+    with torch.no_grad():
+        model.policy_head.weight.mul_(300.0)
+    runs.save_checkpoint(run_id, 0, checkpoint_to_bytes(model.state_dict()), {"env_steps": 0})
+    return runs
+
+
+def sensor_inputs(spec, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray | None]:
+    """``n`` camera observations (stereo: two different sim frames as left and right) and LiDAR vectors."""
+    frames = sim_frames(n + spec.stack_size + 1, seed)
+    per_frame = [
+        np.concatenate([frames[i], frames[i + 1]], axis=-1) if spec.frame_channels == 2 else frames[i]
+        for i in range(len(frames) - 1)
+    ]
+    obs = np.stack([np.concatenate(per_frame[i : i + spec.stack_size], axis=-1) for i in range(n)])
+    rng = np.random.default_rng(seed)
+    scans = rng.uniform(0.1, 1.5, (n, 64))
+    lidar = np.stack([lidar_from_ranges(spec.lidar.name, s) for s in scans]) if spec.lidar else None
+    return obs, lidar
+
+
+@pytest.mark.parametrize(
+    ("sensors", "stack"),
+    [(["STEREO_CAMERAS", "LIDAR"], 1), (["FRONT_FACING_CAMERA", "SECTOR_LIDAR"], 2), (["STEREO_CAMERAS"], 2)],
+    ids=["stereo+lidar", "front+sector-stack2", "stereo-stack2"],
+)
+def test_onnx_export_of_other_sensors_matches_torch(tmp_path, sensors, stack):
+    runs = make_sensor_run(tmp_path, "exp", sensors, stack)
+    result = export_onnx(runs, "exp", "latest", tmp_path / "out" / "model.onnx")
+    info = model_info(result["model"])
+    spec = observation_spec(sensors, stack)
+    assert info["sensors"] == list(spec.sensors) and info["obs_shape"] == [120, 160, spec.camera_channels]
+    assert info.get("lidar_shape") == ([spec.lidar_size] if spec.lidar else None)
+    session = ort.InferenceSession(result["model"], providers=["CPUExecutionProvider"])
+    assert [i.name for i in session.get_inputs()] == (["obs", "lidar"] if spec.lidar else ["obs"])
+    model = stored_policy(runs, "exp")
+    obs, lidar = sensor_inputs(spec, 8)
+    feed = {"obs": obs} | ({"lidar": lidar} if spec.lidar else {})
+    onnx_probs, onnx_value = session.run(None, feed)
+    with torch.no_grad():
+        logits, value = model(torch.from_numpy(obs), None if lidar is None else torch.from_numpy(lidar))
+    np.testing.assert_allclose(onnx_probs, torch.softmax(logits, -1).numpy(), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(onnx_value, value.numpy(), rtol=1e-5, atol=1e-4)
+    if spec.lidar:  # the exported graph reads its LiDAR input: the same frames with other scans choose otherwise
+        other = np.stack([lidar_from_ranges(spec.lidar.name, np.full(64, r)) for r in np.linspace(0.1, 2.0, 8)])
+        probs_other, _ = session.run(None, {"obs": np.repeat(obs[:1], 8, axis=0), "lidar": other})
+        assert np.abs(probs_other - probs_other[0]).max() > 1e-3
+
+
+class ScanList:
+    """A LidarSource replaying scans (64 ranges each)."""
+
+    def __init__(self, scans: np.ndarray) -> None:
+        self.scans, self.i = scans, 0
+
+    def read(self) -> np.ndarray:
+        self.i += 1
+        return self.scans[self.i - 1]
+
+
+def test_the_runtime_drives_a_stereo_lidar_model_as_torch_chooses(tmp_path):
+    sensors = ["STEREO_CAMERAS", "LIDAR"]
+    runs = make_sensor_run(tmp_path, "car", sensors)
+    model_path = tmp_path / "model.onnx"
+    export_onnx(runs, "car", "latest", model_path)
+    model = stored_policy(runs, "car")
+    frames = sim_frames(31)
+    rng = np.random.default_rng(1)
+    scans = rng.uniform(0.1, 1.5, (30, 64))
+    scans[rng.random((30, 64)) < 0.1] = np.inf
+    for side, offset in (("left", 0), ("right", 1)):  # right: the next sim frame, so the two images differ
+        writer = cv2.VideoWriter(str(tmp_path / f"{side}.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 15, (160, 120), False)
+        for frame in frames[offset : offset + 30]:
+            writer.write(frame[..., 0])
+        writer.release()
+    expected = []
+    for i in range(30):
+        obs = np.concatenate([frames[i], frames[i + 1]], axis=-1)[None]
+        lidar = lidar_from_ranges("LIDAR", scans[i])[None]
+        expected.append(int(model.act_numpy(obs, deterministic=True, lidar=lidar)[0][0]))
+    assert len(set(expected)) > 1, expected
+    policy = Policy(model_path)
+    assert policy.spec.sensors == ("STEREO_CAMERAS", "LIDAR") and policy.obs_shape == (120, 160, 2)
+    sink = CsvSink(tmp_path / "cmds.csv")
+    result = drive(
+        policy, str(tmp_path / "left.avi"), VehicleCalibration(), sink, right_source=str(tmp_path / "right.avi"),
+        lidar=ScanList(scans),
+    )  # fmt: skip
+    assert result.frames == 30
+    rows = list(csv.DictReader((tmp_path / "cmds.csv").open()))
+    assert [int(r["action"]) for r in rows] == expected
+    # What the model needs, the runtime asks for, in one line.
+    obs = np.concatenate([frames[0], frames[1]], axis=-1)
+    with pytest.raises(DeployError, match="need a LiDAR vector"):
+        policy.act(obs)
+    with pytest.raises(DeployError, match=r"values outside \[0.15, 1.0\]"):
+        policy.act(obs, np.full(64, 5.0, np.float32))
+    with pytest.raises(DeployError, match=r"takes \(120, 160, 2\) uint8"):
+        policy.act(frames[0], lidar_from_ranges("LIDAR", scans[0]))
+    for kwargs, message in (
+        ({"lidar": ScanList(scans)}, "give the right camera too"),
+        ({"right_source": str(tmp_path / "right.avi")}, "give a LiDAR"),
+    ):
+        with pytest.raises(DeployError, match=message):
+            drive(policy, str(tmp_path / "left.avi"), VehicleCalibration(), CsvSink(tmp_path / "x.csv"), **kwargs)
+
+
+def test_preprocess_stereo_is_each_camera_preprocessed_left_then_right():
+    frames = sim_frames(2)
+    left, right = (cv2.resize(cv2.cvtColor(f[..., 0], cv2.COLOR_GRAY2BGR), (640, 480)) for f in frames)
+    pair = preprocess_stereo(left, right)
+    assert pair.shape == (120, 160, 2) and pair.dtype == np.uint8
+    np.testing.assert_array_equal(pair[..., 0], preprocess(left))
+    np.testing.assert_array_equal(pair[..., 1], preprocess(right))
+
+
+def test_a_model_exported_before_sensors_is_a_front_camera_model():
+    assert model_observation({"stack_size": 3}).sensors == ("FRONT_FACING_CAMERA",)
+    assert model_observation({"stack_size": 1, "sensors": ["LIDAR", "STEREO_CAMERAS"]}).lidar_size == 64
+    with pytest.raises(ExportError, match="exactly one camera"):
+        model_observation({"stack_size": 1, "sensors": ["LIDAR"]})

@@ -235,10 +235,16 @@ def test_racer_check_says_what_racer_does_with_each_file(tmp_path: Path) -> None
     ("metadata", "fragment"),
     [
         ({"training_algorithm": "sac"}, 'training_algorithm = "sac" is not supported'),
-        ({"sensor": ["STEREO_CAMERAS"]}, 'sensor = ["STEREO_CAMERAS"] is not supported'),
-        ({"sensor": ["LIDAR"]}, 'sensor = ["LIDAR"] is not supported'),
-        ({"sensor": ["SECTOR_LIDAR"]}, 'sensor = ["SECTOR_LIDAR"] is not supported'),
-        ({"sensor": ["FRONT_FACING_CAMERA", "LIDAR"]}, 'sensor = ["FRONT_FACING_CAMERA", "LIDAR"] is not'),
+        # The simapp's own rules (markov/boto/s3/files/model_metadata.py parse_model_metadata): exactly one camera,
+        # at most one LiDAR; the stereo cameras and a LiDAR with a camera are accepted (tests/test_sensors_net.py).
+        ({"sensor": ["LIDAR"]}, 'sensor = ["LIDAR"] is not supported (DeepRacer needs exactly one camera'),
+        ({"sensor": ["SECTOR_LIDAR"]}, 'sensor = ["SECTOR_LIDAR"] is not supported (DeepRacer needs exactly one'),
+        ({"sensor": ["FRONT_FACING_CAMERA", "STEREO_CAMERAS"]}, "needs exactly one camera, this list has 2"),
+        ({"sensor": ["STEREO_CAMERAS", "LIDAR", "SECTOR_LIDAR"]}, "takes at most one LiDAR, this list has 2"),
+        # Names the simapp knows (markov/architecture/constants.py Input) that racer does not build.
+        ({"sensor": ["LEFT_CAMERA"]}, 'sensor = ["LEFT_CAMERA"] is not supported (racer does not build LEFT_CAMERA'),
+        ({"sensor": ["FRONT_FACING_CAMERA", "DISCRETIZED_SECTOR_LIDAR"]}, "racer does not build DISCRETIZED_SECTOR"),
+        ({"sensor": ["FRONT_FACING_CAMERA", "SONAR"]}, '"SONAR" is not a DeepRacer sensor'),
         ({"neural_network": "RESNET"}, 'neural_network = "RESNET" is not supported'),
     ],
 )
@@ -290,6 +296,10 @@ def test_pretrained_needs_the_same_action_space_and_network(tmp_path: Path) -> N
         ({"version": 3}, ["FRONT_FACING_CAMERA"], "clipped_ppo", "discrete"),  # a JSON number: float() takes it
         ({"version": "1", "sensor": ["STEREO_CAMERAS"]}, ["FRONT_FACING_CAMERA"], "clipped_ppo", "discrete"),  # < 2
         ({"sensor": ["observation"]}, ["FRONT_FACING_CAMERA"], "clipped_ppo", "discrete"),  # the legacy camera name
+        ({"sensor": ["observation", "LIDAR"]}, ["FRONT_FACING_CAMERA", "LIDAR"], "clipped_ppo", "discrete"),
+        ({"sensor": ["STEREO_CAMERAS"]}, ["STEREO_CAMERAS"], "clipped_ppo", "discrete"),  # version 2+: as listed
+        ({"sensor": ["LIDAR", "STEREO_CAMERAS"]}, ["LIDAR", "STEREO_CAMERAS"], "clipped_ppo", "discrete"),  # any order
+        ({"version": "5", "sensor": ["FRONT_FACING_CAMERA", "SECTOR_LIDAR"]}, None, "clipped_ppo", "discrete"),
         ({"training_algorithm": " Clipped_PPO ", "action_space_type": "Discrete"}, None, "clipped_ppo", "discrete"),
     ],
 )
@@ -301,7 +311,7 @@ def test_model_metadata_values_read_as_the_simapp_reads_them(tmp_path, extra, se
     path = tmp_path / "model_metadata.json"
     path.write_text(json.dumps({"action_space": [{"steering_angle": 0, "speed": 1}], **extra}))
     space = load_action_space(path)
-    assert space.sensor == (sensor or ["FRONT_FACING_CAMERA"])
+    assert space.sensor == (sensor or extra.get("sensor", ["FRONT_FACING_CAMERA"]))
     assert (space.training_algorithm, space.action_space_type) == (algorithm, space_type)
 
 

@@ -315,3 +315,32 @@ def test_load_policy_gives_the_saved_weights_in_eval_mode(tmp_path: Path) -> Non
             assert all(torch.equal(state[k], saved[version][k]) for k in state)
     with pytest.raises(StoreKeyError, match="checkpoint 7"):
         load_policy(runs, run, actions, 7, frame=SMALL[:2])
+
+
+def test_a_front_camera_network_keeps_the_state_dict_of_checkpoints_before_lidar() -> None:
+    """Old checkpoints load: a camera-only network is one ``trunk`` Sequential (convs, Flatten, [Dropout], dense 512)
+    with the same keys and shapes as before other sensors existed; the sensors default to the front camera."""
+    shallow = build_policy(SMALL, CONTINUOUS)
+    assert shallow.spec.sensors == ("FRONT_FACING_CAMERA",) and shallow.lidar_size == 0
+    assert {k: tuple(v.shape) for k, v in shallow.state_dict().items()} == {
+        "trunk.0.weight": (32, 1, 8, 8),
+        "trunk.0.bias": (32,),
+        "trunk.2.weight": (64, 32, 4, 4),
+        "trunk.2.bias": (64,),
+        "trunk.4.weight": (64, 64, 3, 3),
+        "trunk.4.bias": (64,),
+        "trunk.7.weight": (512, 64),  # after Flatten (6): 64 × 1 × 1 features on 36×36 frames
+        "trunk.7.bias": (512,),
+        "value_head.weight": (1, 512),
+        "value_head.bias": (1,),
+        "action_mid": (2,),
+        "action_half": (2,),
+        "policy_head.weight": (2, 512),
+        "policy_head.bias": (2,),
+        "log_std": (2,),
+    }
+    with_dropout = build_policy(SMALL, DISCRETE, PolicyConfig(dropout=0.2))
+    assert "trunk.8.weight" in with_dropout.state_dict()  # Dropout (7) before the dense layer, as before
+    assert build_policy(SMALL, DISCRETE, sensors=["FRONT_FACING_CAMERA"]).state_dict().keys() == (
+        build_policy(SMALL, DISCRETE).state_dict().keys()
+    )

@@ -16,6 +16,7 @@ from common.protocol import (
     decode_segment,
     encode_segment,
 )
+from common.sensors import LIDARS
 
 OBS = (120, 160, 1)
 
@@ -155,3 +156,112 @@ def test_keys_live_under_one_prefix_and_run_ids_are_checked():
     for bad in ("", "a b", "../x", "x" * 200, "a:b"):
         with pytest.raises(ValueError, match="run id"):
             check_run_id(bad)
+
+
+# --- the LiDAR arrays (common.sensors: LIDAR 64 values in [0.15, 1], SECTOR_LIDAR 8 in [0, 1]) ---------------------
+
+STEREO = (120, 160, 2)
+
+
+def lidar_segment(spec, steps=4, seed=0) -> Segment:
+    """A stereo segment with a LiDAR: the camera arrays have 2 channels, plus ``lidar`` and ``next_lidar``."""
+    rng = np.random.default_rng(seed)
+    seg = make_segment(steps=steps, seed=seed)
+    seg.arrays["obs"] = rng.integers(0, 256, (steps, *STEREO), dtype=np.uint8)
+    seg.arrays["next_obs"] = rng.integers(0, 256, (1, *STEREO), dtype=np.uint8)
+    for name, rows in (("lidar", steps), ("next_lidar", 1)):
+        if spec.name == "LIDAR":
+            values = rng.uniform(spec.low, spec.high, (rows, spec.size))
+        else:
+            values = rng.integers(0, 2, (rows, spec.size))
+        seg.arrays[name] = values.astype(np.float32)
+    return seg
+
+
+@pytest.mark.parametrize("sensor", ["LIDAR", "SECTOR_LIDAR"])
+def test_lidar_arrays_roundtrip(sensor, redis_url):
+    spec = LIDARS[sensor]
+    seg = lidar_segment(spec, steps=8)
+    seg.arrays["lidar"][0, :2] = [spec.low, spec.high]  # the bounds themselves are in range
+    r = redis.Redis.from_url(redis_url)
+    r.xadd(Keys("run-a").segments, encode_segment(seg))
+    [(_, [(_, fields)])] = r.xread({Keys("run-a").segments: "0-0"}, count=1, block=100)
+    out = decode_segment(fields, "run-a", STEREO, 10, lidar=spec)
+    for name, arr in seg.arrays.items():
+        assert out.arrays[name].dtype == arr.dtype and np.array_equal(out.arrays[name], arr), name
+    assert out.arrays["lidar"].shape == (8, spec.size) and out.arrays["next_lidar"].shape == (1, spec.size)
+
+
+def corrupt_lidar(mutate, spec=LIDARS["LIDAR"]):
+    fields = encode_segment(lidar_segment(spec))
+    header = json.loads(fields["header"])
+    mutate(fields, header)
+    fields["header"] = json.dumps(header).encode()
+    return fields
+
+
+def _floats(values) -> bytes:
+    return np.asarray(values, np.float32).tobytes()
+
+
+def _reshaped(name: str, shape: list[int]):
+    """A mutation giving array ``name`` another (consistent) shape, filled with valid values."""
+
+    def mutate(f, h):
+        h["arrays"][name].update(shape=shape)
+        f[f"a:{name}"] = _floats(np.full(shape, 0.5))
+
+    return mutate
+
+
+@pytest.mark.parametrize(
+    "mutate, reason",
+    [
+        (lambda f, h: (f.pop("a:lidar"), h["arrays"].pop("lidar")), "missing_array"),
+        (lambda f, h: (f.pop("a:next_lidar"), h["arrays"].pop("next_lidar")), "missing_array"),
+        (lambda f, h: h["arrays"]["lidar"].update(dtype="float64"), "bad_dtype"),
+        (lambda f, h: h["arrays"]["lidar"].update(dtype="uint8"), "bad_dtype"),
+        (lambda f, h: f.update({"a:lidar": f["a:lidar"][:-4]}), "bad_length"),
+        (_reshaped("lidar", [4, 8]), "bad_shape"),
+        (_reshaped("lidar", [3, 64]), "bad_shape"),
+        (_reshaped("next_lidar", [64]), "bad_shape"),
+        (lambda f, h: f.update({"a:lidar": _floats(np.full((4, 64), np.nan))}), "non_finite"),
+        (lambda f, h: f.update({"a:next_lidar": _floats(np.full((1, 64), np.inf))}), "non_finite"),
+        (lambda f, h: f.update({"a:lidar": _floats(np.full((4, 64), 0.1))}), "bad_lidar"),  # below 0.15 m
+        (lambda f, h: f.update({"a:next_lidar": _floats(np.full((1, 64), 12.0))}), "bad_lidar"),  # not clipped to 1
+    ],
+)  # fmt: skip
+def test_malformed_lidar_arrays_are_refused_with_a_reason(mutate, reason):
+    with pytest.raises(ProtocolError) as exc:
+        decode_segment(corrupt_lidar(mutate), "run-a", STEREO, 10, lidar=LIDARS["LIDAR"])
+    assert exc.value.reason == reason
+
+
+def test_lidar_arrays_must_match_the_runs_sensors():
+    sector = LIDARS["SECTOR_LIDAR"]
+    fields = encode_segment(lidar_segment(sector))
+    with pytest.raises(ProtocolError) as exc:  # a run without a LiDAR refuses them
+        decode_segment(fields, "run-a", STEREO, 10)
+    assert exc.value.reason == "bad_header" and "without a LiDAR" in str(exc.value)
+    with pytest.raises(ProtocolError) as exc:  # a LIDAR run refuses a SECTOR_LIDAR segment (8 values, not 64)
+        decode_segment(fields, "run-a", STEREO, 10, lidar=LIDARS["LIDAR"])
+    assert exc.value.reason == "bad_shape"
+    bad = lidar_segment(sector)
+    bad.arrays["lidar"][1, 3] = 1.5  # sector values are within [0, 1]
+    with pytest.raises(ProtocolError) as exc:
+        decode_segment(encode_segment(bad), "run-a", STEREO, 10, lidar=sector)
+    assert exc.value.reason == "bad_lidar"
+    with pytest.raises(ProtocolError) as exc:  # a LiDAR run refuses a segment without them
+        decode_segment(encode_segment(make_segment()), "run-a", OBS, 10, lidar=sector)
+    assert exc.value.reason == "missing_array"
+    with pytest.raises(ProtocolError) as exc:  # and a stereo run a front-camera segment
+        decode_segment(encode_segment(make_segment()), "run-a", STEREO, 10)
+    assert exc.value.reason == "bad_shape"
+
+
+def test_a_camera_only_segment_is_unchanged_by_lidar_support():
+    """Same fields, same header arrays as before LiDAR existed: an old worker's segments decode on a new trainer."""
+    fields = encode_segment(make_segment())
+    names = ["obs", "next_obs", "actions", "rewards", "terminated", "truncated", "logp", "values", "next_values"]
+    assert sorted(json.loads(fields["header"])["arrays"]) == sorted([*names, "episode_id"])
+    assert json.loads(fields["header"])["schema"] == 1

@@ -1,0 +1,316 @@
+"""DeepRacer's LIDAR, SECTOR_LIDAR and DISCRETIZED_SECTOR_LIDAR sensors, cast with MuJoCo rays.
+
+What DeepRacer's simulation does (aws-deepracer-community/deepracer-simapp, files under ``bundle/``):
+
+- The scan. ``urdf/deepracer/racecar.gazebo`` puts a Gazebo ``gpu_lidar`` (``ray`` before the ROS 2 port) on the
+  ``laser`` link at 10 Hz with 64 samples from -2.61799 to 2.61799 rad, range 0.15-12 m (range resolution 0.01),
+  Gaussian noise mean 0, stddev 0.01 (the values ``src/deepracer_simulation_environment/launch/racecar.launch.py``
+  passes, the same as ``markov/sensors/constants.py``: ``LIDAR_360_DEGREE_*``). The ``laser`` link is mounted by
+  ``hokuyo_joint`` at xyz (0.02913, 0, 0.16145) rpy (0, 0, 3.1416) on ``chassis``, itself 0.023249 above
+  ``base_link`` (``urdf/deepracer/deepracer_*_lidar.urdf``). The sensor is turned half a turn: sample 0 looks 30°
+  left of straight ahead and the samples sweep anticlockwise through left, behind and right to 30° right of
+  ahead; the 60° blind cone is straight ahead (where the cameras look).
+- gz-sensors (``src/Lidar.cc``, ``Lidar::PublishLidarScan``) adds the noise to each range and clamps it to
+  [range min, range max]: a ray that hits nothing (+inf, noise or not) reads 12.0, and the range resolution is not
+  applied. Geometry nearer than the minimum range is inside the rays' near clip and not seen (gz-rendering's
+  ``gpu_rays_1st_pass_fs.glsl``).
+- LIDAR observation: ``markov/sagemaker_graph_manager.py`` adds ``ObservationClippingFilter(0.15, 1.0)``
+  (``rl_coach/filters/observation/observation_clipping_filter.py``: ``np.clip``) to the 64 ranges
+  (``markov/sensors/sensors_rollout.py: Lidar._scan_cb`` keeps ``LaserScan.ranges`` as they are); observation
+  space (64,) in [0.15, 1.0] (``markov/sensors/utils.py``, ``TRAINING_LIDAR_SIZE`` in
+  ``markov/environments/constants.py``).
+- SECTOR_LIDAR: the same scan through ``ObservationSectorDiscretizeFilter(num_sectors=8, num_values_per_sector=1,
+  clipping_dist=0.5)`` (``NUMBER_OF_LIDAR_SECTORS``, ``SECTOR_LIDAR_CLIPPING_DIST`` in
+  ``markov/environments/constants.py``; ``markov/filters/observation/observation_sector_discretize_filter.py``):
+  the minimum of each run of 8 consecutive samples, 1.0 where it is below 0.5 m, else 0.0; shape (8,).
+- DISCRETIZED_SECTOR_LIDAR: the same filter with the model metadata's sectors, values per sector and clipping
+  distance (``markov/boto/s3/files/model_metadata.py``).
+
+Here the scan is a batch of horizontal MuJoCo rays (``mj_multiRay``) from the sensor at its height above the
+ground, from the car's planar pose (as :class:`sim.camera.GroundCamera`): the ground plane is never hit, and only
+the object slots (geom group :data:`sim.world.OBJECT_GEOM_GROUP`, see :func:`sim.world.set_objects`) are tested,
+so the car never sees itself. The scene holds only the track and those objects: nothing else stands at lidar
+height (DeepRacer's worlds may have walls or buildings there). Boxes lower than the sensor
+(:attr:`LidarSpec.height_m`, 0.185 m) are not seen, as in DeepRacer. A sensor inside a box (the car overlapping
+it: a crash) reads the box's far side where Gazebo would see through it. :func:`analytic_ranges` is the same scan
+computed in closed form (ray against oriented box), the reference the tests hold the MuJoCo cast to.
+
+The env calls, each step after the physics (and after :func:`sim.world.set_objects` when objects moved)::
+
+    obs = lidar.observe(physics.pose, np_random)      # LIDAR: (64,) float32 in [0.15, 1.0]
+    obs = sector_lidar.observe(physics.pose, np_random)  # SECTOR_LIDAR: (8,) float32 of 0.0 / 1.0
+
+DeepRacer's lidar publishes at 10 Hz and its agent takes the latest scan without waiting
+(``markov/sensors/composite_sensor.py``), so one step in three repeats a scan; :data:`LIDAR_HZ` is there for an env
+that wants to reproduce that.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from sim.physics import Pose
+from sim.world import OBJECT_GEOM_GROUP
+
+LIDAR_SAMPLES = 64
+"""``LIDAR_360_DEGREE_SAMPLE`` (markov/sensors/constants.py), ``TRAINING_LIDAR_SIZE``."""
+LIDAR_MIN_ANGLE = -2.61799
+"""Radians, in the laser frame (``LIDAR_360_DEGREE_MIN_ANGLE``)."""
+LIDAR_MAX_ANGLE = 2.61799
+"""Radians, in the laser frame (``LIDAR_360_DEGREE_MAX_ANGLE``)."""
+LIDAR_MIN_RANGE = 0.15
+"""Metres (``LIDAR_360_DEGREE_MIN_RANGE``)."""
+LIDAR_MAX_RANGE = 12.0
+"""Metres (``LIDAR_360_DEGREE_MAX_RANGE``)."""
+LIDAR_NOISE_STDDEV = 0.01
+"""Metres, Gaussian, mean 0 (``LIDAR_360_DEGREE_NOISE_STDDEV``, ``_MEAN``)."""
+LIDAR_HZ = 10.0
+"""Scan rate (``update_rate`` in urdf/deepracer/racecar.gazebo); the camera's is 15 Hz."""
+LIDAR_CLIP = (0.15, 1.0)
+"""LIDAR observation: ``ObservationClippingFilter(0.15, 1.0)`` (markov/sagemaker_graph_manager.py)."""
+NUMBER_OF_LIDAR_SECTORS = 8
+"""SECTOR_LIDAR sectors (markov/environments/constants.py)."""
+SECTOR_LIDAR_CLIPPING_DIST = 0.5
+"""SECTOR_LIDAR: a sector reads 1 when its nearest range is below this, metres (ditto)."""
+
+_CHASSIS_ABOVE_BASE_M = 0.023249  # base_link_joint, urdf/deepracer/deepracer_*_lidar.urdf
+_LASER_ON_CHASSIS = (0.02913, 0.0, 0.16145)  # hokuyo_joint xyz, ditto; rpy (0, 0, 3.1416)
+
+
+@dataclass(frozen=True)
+class LidarSpec:
+    """The scan's geometry and noise; defaults are DeepRacer's (module docstring).
+
+    The mount is relative to this repository's base_link (midway between the axles) on the ground: DeepRacer's
+    ``base_link`` is at ground level (its bot car, ``models/bot_car/model.sdf``, has the rear axle 0.039 m up) and
+    0.3 mm behind the axles' midpoint, which is neglected."""
+
+    samples: int = LIDAR_SAMPLES
+    min_angle: float = LIDAR_MIN_ANGLE
+    max_angle: float = LIDAR_MAX_ANGLE
+    min_range: float = LIDAR_MIN_RANGE
+    max_range: float = LIDAR_MAX_RANGE
+    noise_stddev: float = LIDAR_NOISE_STDDEV
+    forward_m: float = _LASER_ON_CHASSIS[0]
+    """Sensor ahead of base_link, metres."""
+    left_m: float = _LASER_ON_CHASSIS[1]
+    height_m: float = _CHASSIS_ABOVE_BASE_M + _LASER_ON_CHASSIS[2]
+    """Sensor above the ground, metres (0.1847)."""
+    yaw: float = 3.1416
+    """Sensor frame's rotation on the car, radians (hokuyo_joint's rpy: it looks backwards)."""
+
+    def angles(self) -> np.ndarray:
+        """(samples,) ray directions in the car frame, radians anticlockwise from ahead, in scan order."""
+        return self.yaw + np.linspace(self.min_angle, self.max_angle, self.samples)
+
+
+class Lidar:
+    """DeepRacer's LIDAR: 64 ranges clipped to [0.15, 1.0] m, cast against the object slots of ``model``."""
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, spec: LidarSpec | None = None) -> None:
+        self.model, self.data = model, data
+        self.spec = spec or LidarSpec()
+        n = self.spec.samples
+        self._angles = self.spec.angles()
+        self._groups = np.zeros(6, np.uint8)
+        self._groups[OBJECT_GEOM_GROUP] = 1
+        self._car = model.body("car").id if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "car") >= 0 else -1
+        self._vec = np.zeros((n, 3))
+        self._dist = np.empty(n)
+        self._geom = np.empty(n, np.int32)
+        self._pnt = np.empty(3)
+
+    def scan(self, pose: Pose, rng: np.random.Generator | None = None) -> np.ndarray:
+        """The raw scan (DeepRacer's ``LaserScan.ranges``): (samples,) float32 metres in [min, max range], max
+        where nothing is hit; Gaussian noise drawn from ``rng`` (none without one), then clamped (gz-sensors)."""
+        s = self.spec
+        c, si = math.cos(pose.yaw), math.sin(pose.yaw)
+        self._pnt[:] = (pose.x + c * s.forward_m - si * s.left_m, pose.y + si * s.forward_m + c * s.left_m, s.height_m)
+        world = self._angles + pose.yaw
+        self._vec[:, 0] = np.cos(world)
+        self._vec[:, 1] = np.sin(world)
+        mujoco.mj_multiRay(
+            self.model,
+            self.data,
+            self._pnt,
+            self._vec.reshape(-1),
+            self._groups,
+            1,
+            self._car,
+            self._geom,
+            self._dist,
+            None,
+            s.samples,
+            s.max_range,
+        )
+        return _finish(self._dist, s, rng)
+
+    def observe(self, pose: Pose, rng: np.random.Generator | None = None) -> np.ndarray:
+        """The LIDAR observation: (64,) float32 in [0.15, 1.0]."""
+        return lidar_observation(self.scan(pose, rng))
+
+
+class SectorLidar(Lidar):
+    """DeepRacer's SECTOR_LIDAR: (8,) float32, 1.0 where a sector's nearest range is below 0.5 m."""
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        data: mujoco.MjData,
+        spec: LidarSpec | None = None,
+        num_sectors: int = NUMBER_OF_LIDAR_SECTORS,
+        clipping_dist: float = SECTOR_LIDAR_CLIPPING_DIST,
+    ) -> None:
+        super().__init__(model, data, spec)
+        self.num_sectors, self.clipping_dist = num_sectors, clipping_dist
+
+    def observe(self, pose: Pose, rng: np.random.Generator | None = None) -> np.ndarray:
+        return sector_observation(self.scan(pose, rng), self.num_sectors, self.clipping_dist)
+
+
+def _finish(dist: np.ndarray, spec: LidarSpec, rng: np.random.Generator | None) -> np.ndarray:
+    """Ray distances (-1 = no hit) to a DeepRacer scan: misses and hits nearer than the near clip are +inf (gz
+    gpu_lidar), then noise (inf stays inf) and the clamp to [min, max] range (gz-sensors' order): misses read
+    exactly the max range."""
+    ranges = np.where((dist < spec.min_range) | (dist > spec.max_range), np.inf, dist)
+    if rng is not None and spec.noise_stddev > 0:
+        ranges = ranges + rng.normal(0.0, spec.noise_stddev, ranges.shape)
+    return np.clip(ranges, spec.min_range, spec.max_range).astype(np.float32)
+
+
+def lidar_observation(ranges: np.ndarray) -> np.ndarray:
+    """LIDAR: the scan clipped to [0.15, 1.0] (``ObservationClippingFilter(0.15, 1.0)``), float32."""
+    return np.clip(ranges, *LIDAR_CLIP).astype(np.float32)
+
+
+def discretized_sector_observation(
+    ranges: np.ndarray, num_sectors: int, num_values_per_sector: int, clipping_dist: float
+) -> np.ndarray:
+    """``ObservationSectorDiscretizeFilter.filter`` (markov/filters/observation/observation_sector_discretize_filter.py)
+    on a scan: per sector of consecutive samples, a one-hot of ``floor(min(sector, clip) / (clip / values))``
+    without its last ("nothing detected") column; (num_sectors * num_values_per_sector,) float32."""
+    num_sectors = max(num_sectors, 1)
+    values = max(num_values_per_sector, 1)
+    clip = max(min(clipping_dist, LIDAR_MAX_RANGE), LIDAR_MIN_RANGE)
+    r = np.where(np.isinf(ranges), clip, np.asarray(ranges, np.float64))
+    nearest = np.minimum(r.reshape(num_sectors, -1).min(axis=1), clip)
+    index = np.clip(np.floor(nearest / (clip / values)), 0, values).astype(int)
+    onehot = np.zeros((num_sectors, values + 1), np.float32)
+    onehot[np.arange(num_sectors), index] = 1.0
+    return onehot[:, :-1].reshape(-1)
+
+
+def sector_observation(
+    ranges: np.ndarray,
+    num_sectors: int = NUMBER_OF_LIDAR_SECTORS,
+    clipping_dist: float = SECTOR_LIDAR_CLIPPING_DIST,
+) -> np.ndarray:
+    """SECTOR_LIDAR: (num_sectors,) float32, 1.0 where the sector's nearest range is below ``clipping_dist``."""
+    return discretized_sector_observation(ranges, num_sectors, 1, clipping_dist)
+
+
+def analytic_ranges(
+    origin: np.ndarray, angles: np.ndarray, boxes: np.ndarray, height: float, max_range: float = np.inf
+) -> np.ndarray:
+    """Reference scan in closed form: distance from ``origin`` (x, y) along each world angle to the nearest box of
+    ``boxes`` ((K, 6) ``[x, y, yaw, length, width, height]``) standing taller than ``height``, -1 for none
+    within ``max_range``. A ray starting inside a box hits its far side (MuJoCo's convention)."""
+    origin = np.asarray(origin, np.float64)
+    d = np.stack([np.cos(angles), np.sin(angles)], axis=-1)  # (n, 2)
+    best = np.full(len(d), np.inf)
+    for x, y, yaw, length, width, h in np.asarray(boxes, np.float64).reshape(-1, 6):
+        if h <= height:
+            continue
+        c, s = math.cos(yaw), math.sin(yaw)
+        axes = np.array([[c, s], [-s, c]])  # rows: the box's x and y axes
+        p = axes @ (origin - (x, y))  # origin in the box frame
+        v = d @ axes.T  # directions in the box frame, (n, 2)
+        half = np.array([length / 2, width / 2])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1 = (-half - p) / v
+            t2 = (half - p) / v
+        lo = np.where(v == 0, np.where(np.abs(p) <= half, -np.inf, np.inf), np.minimum(t1, t2)).max(axis=1)
+        hi = np.where(v == 0, np.where(np.abs(p) <= half, np.inf, -np.inf), np.maximum(t1, t2)).min(axis=1)
+        t = np.where(lo >= 0, lo, hi)  # entering, or leaving when starting inside
+        hit = (lo <= hi) & (t >= 0)
+        best = np.where(hit & (t < best), t, best)
+    return np.where(np.isfinite(best) & (best <= max_range), best, -1.0)
+
+
+def analytic_scan(
+    pose: Pose, boxes: np.ndarray, spec: LidarSpec | None = None, rng: np.random.Generator | None = None
+) -> np.ndarray:
+    """:meth:`Lidar.scan` computed with :func:`analytic_ranges` instead of MuJoCo (no model needed)."""
+    s = spec or LidarSpec()
+    c, si = math.cos(pose.yaw), math.sin(pose.yaw)
+    origin = (pose.x + c * s.forward_m - si * s.left_m, pose.y + si * s.forward_m + c * s.left_m)
+    dist = analytic_ranges(np.array(origin), s.angles() + pose.yaw, boxes, s.height_m, s.max_range)
+    return _finish(dist, s, rng)
+
+
+def _bench(calls: int = 1000, repeats: int = 5) -> None:
+    """``python -m sim.lidar``: median time per call of the new sensors (pin it: ``taskset -c 1``), wall clock
+    and this thread's CPU time (the latter is steadier on a shared machine)."""
+    import statistics
+    import time
+
+    import cv2
+
+    from sim.camera import GroundCamera, StereoGroundCamera
+    from sim.physics import CarPhysics
+    from sim.texture import DEEPRACER_PALETTE, TextureFrame, colorize, draw_layers
+    from sim.track import load_track
+    from sim.world import build_model, set_objects
+
+    cv2.setNumThreads(1)
+    track = load_track("reinvent_base")
+    frame = TextureFrame.for_track(track)
+    texture = colorize(draw_layers(track, frame), DEEPRACER_PALETTE)
+    model = build_model(frame, object_slots=6)
+    physics = CarPhysics(model)
+    x, y = track.center[3]
+    dx, dy = track.center[4] - track.center[3]
+    pose = Pose(float(x), float(y), math.atan2(dy, dx))
+    physics.reset(pose)
+    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+    # Six DeepRacer box obstacles around the car, four of them in the camera's view.
+    placed = [(1.0, 0.1, 0.3), (2.0, -0.4, 0.8), (0.6, 0.35, 0.0), (-1.0, 0.2, 0.0), (4.0, 1.5, 0.2), (-3.0, -0.5, 0.0)]
+    boxes = np.array(
+        [[pose.x + c * f - s * le, pose.y + s * f + c * le, pose.yaw + r, 0.4, 0.3, 0.25] for f, le, r in placed]
+    )
+    set_objects(model, physics.data, boxes)
+    lidar, rng = Lidar(model, physics.data), np.random.default_rng(0)
+    single = GroundCamera(frame, texture, sky_rgb=DEEPRACER_PALETTE.sky)
+    stereo = StereoGroundCamera(frame, texture, sky_rgb=DEEPRACER_PALETTE.sky)
+    cases = {
+        "lidar scan + LIDAR obs, 6 boxes": lambda: lidar.observe(pose, rng),
+        "stereo render, 6 boxes": lambda: stereo.render(pose, boxes=boxes),
+        "stereo render, 0 boxes": lambda: stereo.render(pose),
+        "single render, 0 boxes (today)": lambda: single.render(pose),
+        "single render, 6 boxes": lambda: single.render(pose, boxes=boxes),
+        "set_objects, 6 boxes": lambda: set_objects(model, physics.data, boxes),
+    }
+    wall: dict[str, list[float]] = {name: [] for name in cases}
+    cpu: dict[str, list[float]] = {name: [] for name in cases}
+    for fn in cases.values():
+        fn()
+    for _ in range(repeats):  # interleaved, so that a change in the machine's load hits every case alike
+        for name, fn in cases.items():
+            t0, c0 = time.perf_counter(), time.thread_time()
+            for _ in range(calls):
+                fn()
+            wall[name].append((time.perf_counter() - t0) / calls * 1e6)
+            cpu[name].append((time.thread_time() - c0) / calls * 1e6)
+    for name in cases:
+        print(
+            f"{name:32s} {statistics.median(wall[name]):7.1f} us wall  {statistics.median(cpu[name]):7.1f} us cpu"
+            f"   (median of {repeats} x {calls})"
+        )
+
+
+if __name__ == "__main__":
+    _bench()
