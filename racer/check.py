@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from common.race import RaceConfig
 from racer.drfc import DrfcImport, import_drfc
 
 
@@ -22,6 +23,8 @@ class UserFiles:
     eval_episodes: int | None = None
     pretrained: str | None = None
     randomization: dict = field(default_factory=dict)
+    race: RaceConfig | None = None
+    """The race (``--race``/``--race-type``, else a DRfC run.env's); None: a time trial."""
     drfc: DrfcImport | None = None
 
 
@@ -31,6 +34,7 @@ def merge_inputs(
     action_space: Path | None,
     hyperparams: Path | None,
     from_drfc: Path | None,
+    race: RaceConfig | None = None,
 ) -> UserFiles:
     """The run's inputs: explicit options first, then what a DRfC folder says, then racer's defaults."""
     drfc = import_drfc(from_drfc) if from_drfc else None
@@ -51,6 +55,7 @@ def merge_inputs(
         eval_episodes=drfc.eval_episodes if drfc else None,
         pretrained=drfc.pretrained if drfc else None,
         randomization=dict(drfc.randomization) if drfc else {},
+        race=race if race is not None else (drfc.race if drfc else None),
         drfc=drfc,
     )
 
@@ -81,6 +86,7 @@ def check_files(inputs: UserFiles) -> list[str]:
         inputs.hyperparams,
         notes=notes,
         randomization_update=inputs.randomization,
+        race=inputs.race,
     )
     # What build_run read and checked, not the files read a second time.
     actions = ActionSpace.model_validate_json(files["model_metadata.json"])
@@ -94,6 +100,21 @@ def check_files(inputs: UserFiles) -> list[str]:
         f"{hp.num_epochs} epochs every {hp.num_episodes_between_training} episodes, {hp.loss_type} value loss, "
         f"stops after {hp.term_cond_max_episodes} policy updates",
     ]
+    lines.append(f"race: {race_line(run.env.race)}")
     lines += notes
     lines += drfc_lines(inputs.drfc)
     return lines
+
+
+def race_line(race: RaceConfig) -> str:
+    """The race in a few words, as ``racer check`` and ``racer train`` print it."""
+    text = race.race_type.value
+    if race.obstacle_count:
+        oa = race.object_avoidance
+        where = "fixed" if oa.object_positions else "random" if oa.randomize_obstacle_locations else "evenly spaced"
+        text += f", {race.obstacle_count} obstacles ({where})"
+    if race.bot_car_count:
+        h2b = race.head_to_bot
+        text += f", {race.bot_car_count} bot cars at {h2b.bot_car_speed:g} m/s"
+        text += ", changing lanes" if h2b.is_lane_change else ""
+    return text

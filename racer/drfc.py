@@ -21,7 +21,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from common.errors import UserError
+from pydantic import ValidationError
+
+from common.errors import UserError, first_validation_error
+from common.race import RaceConfig, RaceType, race_config_from_drfc
 from sim.track import bundled_track_names
 
 CUSTOM_FILES = ("reward_function.py", "model_metadata.json", "hyperparameters.json")
@@ -55,6 +58,8 @@ class DrfcImport:
     """DR_* variables set in the files that have no racer meaning (yet)."""
     track_error: DrfcError | None = None
     """DR_WORLD_NAME names a track racer does not ship: the error to raise unless --track is given."""
+    race: RaceConfig | None = None
+    """The race of DR_RACE_TYPE, DR_OA_*, DR_H2B_* and the evaluation penalties (None: none of them set)."""
 
 
 _VAR = re.compile(r"\$(?:\{([A-Za-z_][A-Za-z0-9_]*)\}|([A-Za-z_][A-Za-z0-9_]*))")
@@ -130,6 +135,7 @@ def import_drfc(folder: str | Path) -> DrfcImport:
         if meaning:
             out.mapped[key] = meaning
     _finish_start_positions(out, env)
+    _finish_race(out, env)
     return out
 
 
@@ -175,9 +181,50 @@ def _world(out: DrfcImport, value: str, where: _Where) -> str:
 
 
 def _race_type(out: DrfcImport, value: str, where: _Where) -> str:
-    if value.strip().upper() != "TIME_TRIAL":
-        raise where.error("racer runs TIME_TRIAL only (object avoidance and head-to-bot are not built yet)")
-    return "time trial"
+    names = [t.value for t in RaceType]
+    if value.strip() not in names:
+        raise where.error(f"expected one of {', '.join(names)}")
+    return f"race type {value.strip()}"
+
+
+_RACE_NUMBERS: dict[str, tuple[type, float, float]] = {
+    "DR_OA_NUMBER_OF_OBSTACLES": (int, 0, 20),
+    "DR_OA_MIN_DISTANCE_BETWEEN_OBSTACLES": (float, 0.0, 100.0),
+    "DR_H2B_NUMBER_OF_BOT_CARS": (int, 0, 10),
+    "DR_H2B_BOT_CAR_SPEED": (float, 0.01, 10.0),
+    "DR_H2B_MIN_DISTANCE_BETWEEN_BOT_CARS": (float, 0.0, 100.0),
+    "DR_H2B_LOWER_LANE_CHANGE_TIME": (float, 0.0, 3600.0),
+    "DR_H2B_UPPER_LANE_CHANGE_TIME": (float, 0.0, 3600.0),
+    "DR_H2B_LANE_CHANGE_DISTANCE": (float, 0.01, 100.0),
+    "DR_H2B_BOT_CAR_PENALTY": (float, 0.0, 3600.0),
+    "DR_EVAL_OFF_TRACK_PENALTY": (float, 0.0, 3600.0),
+    "DR_COLLISION_PENALTY": (float, 0.0, 3600.0),
+    "DR_EVAL_MAX_RESETS": (int, 0, 10000),
+    "DR_EVAL_RESET_BEHIND_DIST": (float, 0.0, 100.0),
+}
+"""The race's numeric DRfC variables with their type and sensible range (common/race.py maps them)."""
+_RACE_BOOLS = (
+    "DR_OA_RANDOMIZE_OBSTACLE_LOCATIONS",
+    "DR_OA_IS_OBSTACLE_BOT_CAR",
+    "DR_H2B_RANDOMIZE_BOT_CAR_LOCATIONS",
+    "DR_H2B_IS_LANE_CHANGE",
+)
+_RACE_TEXT = ("DR_OA_OBSTACLE_TYPE", "DR_OA_OBJECT_POSITIONS")
+
+
+def _race_variable(out: DrfcImport, value: str, where: _Where) -> str:
+    """Check one race variable's form here (to name its file); :func:`_finish_race` builds the race."""
+    if where.key in _RACE_NUMBERS:
+        _number(where, *_RACE_NUMBERS[where.key])
+    elif where.key in _RACE_BOOLS and value.strip().lower() not in ("true", "false"):
+        # The simapp's str2bool knows only true/false: any other text stays a (truthy) string there.
+        raise where.error("expected True or False")
+    return "race settings (below)"
+
+
+def _evaluation_collision(out: DrfcImport, value: str, where: _Where) -> str:
+    # DRfC's template sets it, but its scripts/evaluation/prepare-config.py reads DR_COLLISION_PENALTY instead.
+    return ""
 
 
 def _workers(out: DrfcImport, value: str, where: _Where) -> str:
@@ -227,6 +274,8 @@ def _unused_when_empty(out: DrfcImport, value: str, where: _Where) -> str:
 _HANDLERS = {
     "DR_WORLD_NAME": _world,
     "DR_RACE_TYPE": _race_type,
+    **{key: _race_variable for key in (*_RACE_NUMBERS, *_RACE_BOOLS, *_RACE_TEXT)},
+    "DR_EVAL_COLLISION_PENALTY": _evaluation_collision,
     "DR_WORKERS": _workers,
     "DR_LOCAL_S3_MODEL_PREFIX": _model_prefix,
     "DR_EVAL_NUMBER_OF_TRIALS": _eval_trials,
@@ -268,3 +317,28 @@ def _finish_start_positions(out: DrfcImport, env: dict[str, tuple[str, Path]]) -
             raise _Where(prefix[1], "DR_LOCAL_S3_PRETRAINED_PREFIX", prefix[0]).error("names no run")
         out.pretrained = f"{source}:{'latest' if checkpoint == 'last' else checkpoint}"
         out.mapped["DR_LOCAL_S3_PRETRAINED"] = f"--pretrained {out.pretrained}"
+
+
+def _finish_race(out: DrfcImport, env: dict[str, tuple[str, Path]]) -> None:
+    """The race DRfC's variables describe (``common/race.py: race_config_from_drfc`` reads them as DRfC's scripts
+    do, with the evaluation penalties racer's evaluator applies); a value the race refuses names its file."""
+    keys = ("DR_RACE_TYPE", *_RACE_NUMBERS, *_RACE_BOOLS, *_RACE_TEXT)
+    given = {key: env[key] for key in keys if key in env}
+    if not given:
+        return
+    values = {key: value.strip() for key, (value, _) in given.items()}
+    try:
+        out.race = race_config_from_drfc(values, evaluation=True)
+    except ValidationError as exc:
+        files = ", ".join(sorted({str(path) for _, path in given.values()}))
+        raise DrfcError(f"DRfC file {files!r}: race settings: {first_validation_error(exc)}") from None
+    except ValueError as exc:
+        files = ", ".join(sorted({str(path) for _, path in given.values()}))
+        raise DrfcError(f"DRfC file {files!r}: {exc}") from None
+    race = out.race
+    summary = f"{race.race_type.value}"
+    if race.obstacle_count:
+        summary += f", {race.obstacle_count} obstacles"
+    if race.bot_car_count:
+        summary += f", {race.bot_car_count} bot cars at {race.head_to_bot.bot_car_speed:g} m/s"
+    out.mapped["DR_RACE_TYPE"] = f"race {summary}"

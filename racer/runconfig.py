@@ -20,6 +20,7 @@ from common.config import (
 from common.errors import OptionError, UserError
 from common.hyperparams import Hyperparameters, load_hyperparameters
 from common.jsonfile import load_json_model
+from common.race import RaceConfig, RaceType
 from model_store import RunStore, StoreError
 from sim.env import preflight_reward
 from sim.reward import example_path
@@ -48,6 +49,7 @@ def build_run(
     car_calibration: str | None = None,
     notes: list[str] | None = None,
     randomization_update: dict | None = None,
+    race: RaceConfig | None = None,
 ) -> tuple[RunConfig, dict[str, bytes]]:
     """Validate the user's files now (before any process starts) and build the run's config and files.
 
@@ -65,7 +67,12 @@ def build_run(
     dr = load_randomization(randomization) if randomization else None
     car = load_car(car_calibration) if car_calibration else CarCalibration()
     dr = (dr or RandomizationConfig()).model_copy(update=randomization_update or {})
-    env = EnvConfig(track=track, randomization=RandomizationConfig.model_validate(dr.model_dump()), car=car)
+    env = EnvConfig(
+        track=track,
+        randomization=RandomizationConfig.model_validate(dr.model_dump()),
+        car=car,
+        race=race or RaceConfig(),
+    )
     # A broken reward function fails here, naming the user's file, before any process starts. The check drives a
     # throwaway env (its own copy of the reward module) on the run's track, so nothing it caches reaches training.
     preflight_reward(env.model_copy(update={"reward_fn": str(reward_path), "action_space": action_space}))
@@ -86,6 +93,24 @@ class RandomizationFileError(UserError, ValueError):
 def load_randomization(path: str | Path) -> RandomizationConfig:
     """Read a randomization JSON file; RandomizationFileError naming the file and the bad field."""
     return load_json_model(path, "randomization file", RandomizationConfig, RandomizationFileError)
+
+
+class RaceFileError(UserError, ValueError):
+    """A race settings file that cannot be used; the message names the file and the bad field."""
+
+
+def load_race(path: str | Path | None, race_type: str | None = None) -> RaceConfig | None:
+    """The race of ``--race FILE`` (a JSON of ``common/race.py: RaceConfig``) with ``--race-type`` set on top;
+    None when neither is given. An unknown race type is an OptionError naming the value."""
+    if path is None and race_type is None:
+        return None
+    race = load_json_model(path, "race file", RaceConfig, RaceFileError) if path else RaceConfig()
+    if race_type is not None:
+        names = [t.value for t in RaceType]
+        if race_type.upper() not in names:
+            raise OptionError(f"--race-type {race_type!r} is not one of {', '.join(names)}")
+        race = race.model_copy(update={"race_type": RaceType(race_type.upper())})
+    return race
 
 
 def check_pretrained(runs: RunStore, run: RunConfig, files: dict[str, bytes], ref: str) -> RunConfig:
@@ -110,6 +135,11 @@ def check_pretrained(runs: RunStore, run: RunConfig, files: dict[str, bytes], re
         raise PretrainedError(
             f"pretrained {ref!r}: its action space differs from this run's model_metadata.json; "
             "a pretrained model keeps its action space"
+        )
+    if sorted(their_actions.sensor) != sorted(ours.sensor):
+        raise PretrainedError(
+            f"pretrained {ref!r}: its sensors {their_actions.sensor} differ from this run's {ours.sensor}; "
+            "the network's inputs would not fit"
         )
     mine = run.policy.model_dump(exclude={"l2"})
     if theirs.policy.model_dump(exclude={"l2"}) != mine:
@@ -139,6 +169,8 @@ class NewRun:
     segment_steps: int = 32
     pretrained: str | None = None
     """``RUN[:best|latest|N]`` of another run in the store to start from."""
+    race: RaceConfig | None = None
+    """The race (``--race``/``--race-type`` or a DRfC run.env); None: a time trial."""
 
 
 def open_run(runs: RunStore, run_id: str, new: NewRun | None) -> tuple[RunConfig, dict[str, bytes], list[str]]:
@@ -165,6 +197,7 @@ def open_run(runs: RunStore, run_id: str, new: NewRun | None) -> tuple[RunConfig
         new.car,
         notes=notes,
         randomization_update=new.randomization_update,
+        race=new.race,
     )
     run = run.model_copy(update={"max_policy_lag": new.max_policy_lag, "segment_steps": new.segment_steps})
     if new.pretrained:

@@ -204,7 +204,11 @@ def test_drfc_run_env_is_mapped_and_the_rest_listed(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("line", "fragment"),
     [
-        ("DR_RACE_TYPE=OBJECT_AVOIDANCE", "DR_RACE_TYPE='OBJECT_AVOIDANCE': racer runs TIME_TRIAL only"),
+        ("DR_RACE_TYPE=F1", "DR_RACE_TYPE='F1': expected one of TIME_TRIAL, OBJECT_AVOIDANCE, HEAD_TO_BOT"),
+        ("DR_OA_NUMBER_OF_OBSTACLES=six", "DR_OA_NUMBER_OF_OBSTACLES='six': expected an integer"),
+        ("DR_H2B_IS_LANE_CHANGE=1", "DR_H2B_IS_LANE_CHANGE='1': expected True or False"),
+        ("DR_RACE_TYPE=OBJECT_AVOIDANCE\nDR_OA_OBJECT_POSITIONS=23,1", "for 23.0 % write 0.23"),
+        ("DR_RACE_TYPE=HEAD_TO_BOT\nDR_H2B_LOWER_LANE_CHANGE_TIME=9", "is above upper_lane_change_time"),
         ("DR_TRAIN_ALTERNATE_DRIVING_DIRECTION=sometimes", "expected True or False"),
         ("DR_WORKERS=two", "DR_WORKERS='two': expected an integer"),
     ],
@@ -285,6 +289,51 @@ def test_pretrained_needs_the_same_action_space_and_network(tmp_path: Path) -> N
         check_pretrained(runs, deep, files, "source:best")
     with pytest.raises(PretrainedError, match="no_such_run"):
         check_pretrained(runs, run, files, "no_such_run:best")
+    stereo = dict(files)
+    meta = json.loads(files["model_metadata.json"])
+    stereo["model_metadata.json"] = json.dumps(dict(meta, sensor=["STEREO_CAMERAS"])).encode()
+    with pytest.raises(PretrainedError, match="sensors"):
+        check_pretrained(runs, run, stereo, "source:best")
+
+
+def test_drfc_race_variables_map_to_the_race(tmp_path: Path) -> None:
+    # DRfC's defaults/template-run.env names, read as its scripts/*/prepare-config.py read them.
+    folder = drfc_folder(
+        tmp_path,
+        "DR_RACE_TYPE=OBJECT_AVOIDANCE\nDR_OA_NUMBER_OF_OBSTACLES=3\nDR_OA_RANDOMIZE_OBSTACLE_LOCATIONS=True\n"
+        "DR_OA_MIN_DISTANCE_BETWEEN_OBSTACLES=5\nDR_EVAL_OFF_TRACK_PENALTY=3.0\nDR_COLLISION_PENALTY=6.0\n"
+        "DR_EVAL_MAX_RESETS=100\nDR_EVAL_COLLISION_PENALTY=5.0\nDR_H2B_BOT_CAR_SPEED=0.4\n",
+    )
+    race = import_drfc(folder).race
+    assert race.race_type == "OBJECT_AVOIDANCE" and race.obstacle_count == 3 and race.bot_car_count == 0
+    oa = race.object_avoidance
+    assert oa.randomize_obstacle_locations and oa.min_distance_between_obstacles == 5.0
+    assert (race.penalties.off_track_penalty, race.penalties.collision_penalty) == (3.0, 6.0)
+    assert race.penalties.number_of_resets == 100
+    fixed = drfc_folder(tmp_path / "b", "DR_RACE_TYPE=OBJECT_AVOIDANCE\nDR_OA_OBJECT_POSITIONS=0.23,-1;0.5,1\n")
+    positions = import_drfc(fixed).race.object_avoidance.object_positions
+    assert [(p.progress, int(p.lane)) for p in positions] == [(0.23, -1), (0.5, 1)]
+    bots = drfc_folder(
+        tmp_path / "c", "DR_RACE_TYPE=HEAD_TO_BOT\nDR_H2B_NUMBER_OF_BOT_CARS=2\nDR_H2B_IS_LANE_CHANGE=True\n"
+    )
+    race = import_drfc(bots).race
+    assert race.bot_car_count == 2 and race.head_to_bot.is_lane_change and race.obstacle_count == 0
+    run, _ = build_run("oa-run", race=race)
+    assert run.env.race == race
+
+
+def test_racer_check_and_train_take_the_race_on_the_command_line(tmp_path: Path) -> None:
+    race = tmp_path / "race.json"
+    race.write_text(json.dumps({"race_type": "OBJECT_AVOIDANCE", "object_avoidance": {"number_of_obstacles": 4}}))
+    done = racer("check", "--race", str(race))
+    assert done.returncode == 0, done.stderr
+    assert "race: OBJECT_AVOIDANCE, 4 obstacles (evenly spaced)" in done.stdout
+    done = racer("check", "--race-type", "head_to_bot")
+    assert "race: HEAD_TO_BOT, 3 bot cars at 0.2 m/s" in done.stdout
+    race.write_text(json.dumps({"race_type": "OBJECT_AVOIDANCE", "object_avoidance": {"number_of_obstacles": -1}}))
+    done = racer("check", "--race", str(race))
+    assert done.returncode == 2 and str(race) in done.stderr and "number_of_obstacles" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
 
 
 # --- model_metadata.json as the simapp's parse_model_metadata reads it ------------------------------------------

@@ -65,6 +65,16 @@ FromDrfc = Annotated[
     Path | None,
     typer.Option("--from-drfc", help="A DeepRacer-for-Cloud folder: custom_files/ and run.env (options win)."),
 ]
+RaceTypeOpt = Annotated[
+    str | None,
+    typer.Option("--race-type", help="TIME_TRIAL, OBJECT_AVOIDANCE or HEAD_TO_BOT (DeepRacer's defaults; see --race)."),
+]
+RaceFile = Annotated[
+    Path | None,
+    typer.Option(
+        "--race", help="JSON of race settings: obstacles, bot cars, evaluation penalties (docs/object-avoidance.md)."
+    ),
+]
 Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")]
 
 

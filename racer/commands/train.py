@@ -14,6 +14,8 @@ from racer.commands.options import (
     Endpoint,
     FromDrfc,
     Hyperparams,
+    RaceFile,
+    RaceTypeOpt,
     RewardFn,
     Store,
     console,
@@ -51,6 +53,8 @@ def train(
         str, typer.Option(help="The trainer's PPO update arithmetic: auto (bf16 where native), fp32, bf16.")
     ] = "auto",
     from_drfc: FromDrfc = None,
+    race_type: RaceTypeOpt = None,
+    race: RaceFile = None,
     pretrained: Annotated[
         str | None,
         typer.Option(help="Start from another run's weights in the store: RUN[:best|latest|N] (DRfC pretrained)."),
@@ -61,11 +65,11 @@ def train(
     from model_store import RunStore, open_store
     from racer.check import drfc_lines, merge_inputs
     from racer.launcher import TrainOptions, new_run_id, run_summary, run_train
-    from racer.runconfig import NewRun, open_run, parse_duration
+    from racer.runconfig import NewRun, load_race, open_run, parse_duration
 
     limit = parse_duration(time_limit) if time_limit else None
     check_precision(precision)
-    inputs = merge_inputs(track, reward_fn, action_space, hyperparams, from_drfc)
+    inputs = merge_inputs(track, reward_fn, action_space, hyperparams, from_drfc, load_race(race, race_type))
     workers = workers or inputs.workers or 2
     eval_episodes = inputs.eval_episodes if eval_episodes == 3 and inputs.eval_episodes else eval_episodes
     if resume and not run_id:
@@ -84,6 +88,7 @@ def train(
         max_policy_lag=max_policy_lag,
         segment_steps=segment_steps,
         pretrained=pretrained or inputs.pretrained,
+        race=inputs.race,
     )
     runs = RunStore(open_store(store, s3_endpoint))
     run, files, notes = open_run(runs, rid, None if resume else new)
@@ -123,10 +128,14 @@ def check(
     hyperparams: Hyperparams = None,
     track: TrackOpt = None,
     from_drfc: FromDrfc = None,
+    race_type: RaceTypeOpt = None,
+    race: RaceFile = None,
 ) -> None:
     """Validate DeepRacer files exactly as racer train would, start nothing, and say what racer does with each."""
     from racer.check import check_files, merge_inputs
+    from racer.runconfig import load_race
 
-    for line in check_files(merge_inputs(track, reward_fn, action_space, hyperparams, from_drfc)):
+    inputs = merge_inputs(track, reward_fn, action_space, hyperparams, from_drfc, load_race(race, race_type))
+    for line in check_files(inputs):
         console.print(line, highlight=False, soft_wrap=True)
     console.print("ok: racer train would accept these files", highlight=False)

@@ -1,0 +1,145 @@
+"""Races in the env: time trial unchanged, obstacles and bot cars in the params, the crash rule ending an episode,
+and every sensor seeing the objects (issue 19; semantics in docs/object-avoidance.md)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.race import RaceConfig
+from common.sensors import CAMERA_KEY, LIDAR_KEY
+from sim.env import RacerEnv
+from sim.objects import BOT_CAR, as_boxes
+from sim.physics import Pose
+
+ONE_BOX = RaceConfig(
+    race_type="OBJECT_AVOIDANCE", object_avoidance={"object_positions": [{"progress": 0.1, "lane": 1}]}
+)
+BOTS = RaceConfig(race_type="HEAD_TO_BOT", head_to_bot={"number_of_bot_cars": 2, "bot_car_speed": 0.5})
+
+
+def metadata(tmp_path: Path, sensors: list[str]) -> str:
+    path = tmp_path / "model_metadata.json"
+    space = [{"steering_angle": 0.0, "speed": 1.0}, {"steering_angle": 30.0, "speed": 1.0}]
+    path.write_text(json.dumps({"action_space": space, "sensor": sensors, "version": "5"}))
+    return str(path)
+
+
+def test_a_time_trial_has_no_objects_and_the_simapps_empty_object_params() -> None:
+    env = RacerEnv(track="reinvent_base")
+    _, info = env.reset(seed=0)
+    _, _, _, _, info = env.step(0)
+    p = info["params"]
+    assert env.objects == [] and p["is_crashed"] is False and p["closest_objects"] == [0, 0]
+    assert p["objects_location"] == [] and p["objects_distance"] == [] and p["object_in_camera"] is False
+
+
+def test_obstacle_params_follow_the_placed_objects() -> None:
+    env = RacerEnv(track="reinvent_base", race=RaceConfig(race_type="OBJECT_AVOIDANCE"))
+    _, info = env.reset(seed=0, options={"start_index": 0})
+    p = info["params"]
+    assert len(env.objects) == 6  # DRfC's default count
+    assert p["objects_location"] == [[o.x, o.y] for o in env.objects]
+    assert sorted(p["objects_distance"]) == p["objects_distance"]  # evenly spaced from the start line
+    assert p["objects_speed"] == [0.0] * 6 and p["objects_heading"] == [0.0] * 6
+    behind, ahead = p["closest_objects"]
+    assert p["objects_distance"][ahead] > 0.14  # the nearest object ahead of the car's front point
+
+
+def _drive_into(env: RacerEnv, target: Pose, gap: float, steps: int = 60) -> dict:
+    """Put the car ``gap`` m behind ``target`` facing it, drive straight at it (action 0), return the last info."""
+    start = Pose(target.x - gap * math.cos(target.yaw), target.y - gap * math.sin(target.yaw), target.yaw)
+    index = int(env.track.project(np.array([[start.x, start.y]])).segment[0])
+    env.reset(seed=0, options={"start_index": index})
+    env.physics.reset(start)  # the episode's start waypoint, moved sideways into the target's lane
+    env._place_objects()
+    info = {}
+    for _ in range(steps):
+        _, _, terminated, _, info = env.step(0)
+        if terminated:
+            break
+    return info
+
+
+def test_driving_into_a_box_is_a_crash_that_ends_the_episode(tmp_path: Path) -> None:
+    env = RacerEnv(track="reinvent_base", race=ONE_BOX, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
+    env.reset(seed=0, options={"start_index": 0})
+    box = env.objects[0]
+    info = _drive_into(env, Pose(box.x, box.y, box.yaw), 1.0)
+    assert env.objects[0] == box  # fixed positions: the same box after the reset
+    assert info["episode_status"] == "crashed" and info["params"]["is_crashed"] is True
+
+
+def test_a_time_trial_car_drives_through_where_a_box_would_be(tmp_path: Path) -> None:
+    boxed = RacerEnv(track="reinvent_base", race=ONE_BOX)
+    boxed.reset(seed=0, options={"start_index": 0})
+    box = boxed.objects[0]
+    env = RacerEnv(track="reinvent_base", action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
+    env.reset(seed=0, options={"start_index": 0})
+    info = _drive_into(env, Pose(box.x, box.y, box.yaw), 1.0, steps=30)
+    assert info["params"]["is_crashed"] is False and info["episode_status"] == "in_progress"
+    assert info["pose"].x > box.x + 0.3  # drove on past it
+
+
+def test_bot_cars_drive_their_lanes_and_report_their_speed() -> None:
+    env = RacerEnv(track="reinvent_base", race=BOTS)
+    _, info = env.reset(seed=0, options={"start_index": 0})
+    before = np.array(info["params"]["objects_location"])
+    for _ in range(15):
+        _, _, _, _, info = env.step(0)
+    after = np.array(info["params"]["objects_location"])
+    moved = np.hypot(*(after - before).T)
+    assert all(o.kind == BOT_CAR for o in env.objects)
+    assert np.all((moved > 0.35) & (moved < 0.65)), moved  # 0.5 m/s for 1 s, along a lane a little off centre
+    assert info["params"]["objects_speed"] == [0.5, 0.5]
+
+
+@pytest.mark.parametrize("sensors", [["STEREO_CAMERAS", "LIDAR"], ["FRONT_FACING_CAMERA", "SECTOR_LIDAR"]])
+def test_the_lidar_and_the_camera_see_a_box(tmp_path: Path, sensors: list[str]) -> None:
+    space = metadata(tmp_path, sensors)
+    seen = RacerEnv(track="reinvent_base", action_space=space, race=ONE_BOX)
+    empty = RacerEnv(track="reinvent_base", action_space=space)
+    frames = []
+    for env in (seen, empty):
+        env.reset(seed=0, options={"start_index": 0})
+        box = seen.objects[0]
+        # The car beside the box, looking past it: inside the LiDAR's field, outside its blind cone ahead; nearer
+        # for SECTOR_LIDAR, whose sectors read 1 only below 0.5 m.
+        side, off = box.yaw + math.pi / 2, 0.6 if sensors[1] == "LIDAR" else 0.4
+        x = box.x + off * math.cos(side) - 0.3 * math.cos(box.yaw)
+        y = box.y + off * math.sin(side) - 0.3 * math.sin(box.yaw)
+        env.physics.reset(Pose(x, y, box.yaw + 0.3))
+        env._place_objects()
+        beside = env._observe()
+        env.physics.reset(Pose(box.x - math.cos(box.yaw), box.y - math.sin(box.yaw), box.yaw))  # 1 m behind it
+        env._place_objects()
+        behind = env._observe()
+        assert env.observation_space.contains(beside) and env.observation_space.contains(behind)
+        frames.append((beside, behind))
+    (with_box, seen_ahead), (without, empty_ahead) = frames
+    if sensors[1] == "LIDAR":
+        assert with_box[LIDAR_KEY].min() < 0.9 and without[LIDAR_KEY].min() == pytest.approx(1.0)
+    else:
+        assert with_box[LIDAR_KEY].max() == 1.0 and without[LIDAR_KEY].max() == 0.0
+    changed = np.abs(seen_ahead[CAMERA_KEY].astype(int) - empty_ahead[CAMERA_KEY]).max(axis=2) > 20
+    assert 200 < changed.sum() < 0.5 * changed.size  # the box, not the whole picture
+
+
+def test_stereo_frames_are_two_views_of_the_objects(tmp_path: Path) -> None:
+    env = RacerEnv(track="reinvent_base", action_space=metadata(tmp_path, ["STEREO_CAMERAS"]), race=ONE_BOX)
+    obs, _ = env.reset(seed=0, options={"start_index": 0})
+    assert obs.shape == (120, 160, 2) and obs.dtype == np.uint8
+    assert not np.array_equal(obs[..., 0], obs[..., 1])  # 6 cm apart
+
+
+def test_box_colours_change_with_the_track_colour_randomization() -> None:
+    env = RacerEnv(track="reinvent_base", race=ONE_BOX, randomization={"track_color": 0.5})
+    env.reset(seed=0)
+    first = env._box_colors.copy()
+    env.reset()
+    assert first.shape == (1, 3) and not np.array_equal(first, env._box_colors)
+    assert as_boxes(env.objects).shape == (1, 6)
