@@ -70,6 +70,10 @@ COLUMNS: list[str] = [
     "pause_duration",
 ]
 """DeepRacer's sim-trace header (the simapp's StepMetrics, without the 2026 obstacle_crash_counter/wall_clock)."""
+OBSTACLE_COLUMN = "obstacle_crash_counter"
+"""The column the simapp adds for races with objects (``markov/metrics/constants.py: StepMetrics``): crashes into an
+object so far in the episode. Written only by runs with obstacles or bot cars; deepracer-utils reads it (and drops
+it) when present."""
 
 
 def _f(value: float) -> str:
@@ -174,7 +178,7 @@ def row_from_step(
         track_len=p["track_length"],
         tstamp=p["sim_time"],
         episode_status=info["episode_status"],
-    )
+    ) + ([str(int(info[OBSTACLE_COLUMN]))] if OBSTACLE_COLUMN in info else [])
 
 
 class SimTraceWriter:
@@ -191,8 +195,10 @@ class SimTraceWriter:
         self.rows.append(row)
 
     def csv_text(self) -> str:
-        """Header and rows, comma-separated, one per line (no quoting: no DeepRacer value holds a comma)."""
-        return "".join(",".join(r) + "\n" for r in [COLUMNS, *self.rows])
+        """Header and rows, comma-separated, one per line (no quoting: no DeepRacer value holds a comma). Rows of a
+        race with objects carry :data:`OBSTACLE_COLUMN` too (one env writes one kind of row)."""
+        header = COLUMNS + [OBSTACLE_COLUMN] if self.rows and len(self.rows[0]) > len(COLUMNS) else COLUMNS
+        return "".join(",".join(r) + "\n" for r in [header, *self.rows])
 
     def clear(self) -> None:
         """Forget the rows (after they were uploaded)."""
@@ -202,11 +208,12 @@ class SimTraceWriter:
     def log_line(row: list[str]) -> str:
         """The row as the simapp logs it: ``SIM_TRACE_LOG:`` and its printf precisions (4 decimals for the pose,
         2 for the command, the action and time as written in the CSV)."""
-        (ep, steps, x, y, yaw, steer, speed, action, reward, done, on, prog, wp, length, t, status, pause) = row
+        (ep, steps, x, y, yaw, steer, speed, action, reward, done, on, prog, wp, length, t, status, pause) = row[:17]
+        crashes = "".join(f",{int(c)}" for c in row[17:])
         return (
             f"SIM_TRACE_LOG:{int(ep)},{int(float(steps))},{float(x):.4f},{float(y):.4f},{float(yaw):.4f},"
             f"{float(steer):.2f},{float(speed):.2f},{action},{float(reward):.4f},{done},{on},{float(prog):.4f},"
-            f"{int(wp)},{float(length):.2f},{t},{status},{float(pause):.2f}"
+            f"{int(wp)},{float(length):.2f},{t},{status},{float(pause):.2f}{crashes}"
         )
 
 

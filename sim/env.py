@@ -27,6 +27,7 @@ from common.action_space import (
 from common.config import FRAME_HEIGHT, FRAME_WIDTH, EnvConfig
 from common.errors import UserError
 from common.sensors import CAMERA_KEY, LIDAR_KEY, ObsSpec, lidar_from_ranges, observation_spec
+from common.simtrace import OBSTACLE_COLUMN
 from sim.augment import augment_frame, needs_color
 from sim.camera import CameraSpec, GroundCamera, MujocoCamera, StereoGroundCamera
 from sim.lidar import Lidar
@@ -78,6 +79,7 @@ class RacerEnv(gym.Env):
         self.race = RaceObjects(self.track, cfg.race)
         self.objects: list[WorldObject] = []
         self._box_colors: np.ndarray | None = None
+        self._crashes = 0
         self._build_world()
         self.task = RacingTask(self.track, road=RoadMask(self.track, self.frame))
         self.observation_space = self._observation_space()
@@ -142,6 +144,7 @@ class RacerEnv(gym.Env):
         index = self._start_index(reverse, options.get("start_index"))
         self._randomize(rng)
         self.objects = self.race.reset(rng, reverse)
+        self._crashes = 0
         pose = self.task.start_pose(index, reverse)
         if self.objects and options.get("start_index") is None:
             # A training start within 1 m of an object moves to the other lane (simapp RolloutCtrl.
@@ -172,6 +175,7 @@ class RacerEnv(gym.Env):
         crashed = bool(self.objects) and self.race.crashed(
             ph.pose, self._last.params["progress"], self.task.start_fraction
         )
+        self._crashes += int(crashed)
         result = self.task.observe(
             ph.pose, ph.wheel_positions(), ph.upright, ph.time, requested, objects=self.objects, crashed=crashed
         )
@@ -267,7 +271,8 @@ class RacerEnv(gym.Env):
         return augment_frame(frame, aug, self.np_random)[..., None]
 
     def _info(self, result: StepResult, reward: float, status: str | None = None) -> dict:
-        return {
+        extra = {OBSTACLE_COLUMN: self._crashes + self.race.bot_crashes} if self.race.slots else {}
+        return extra | {
             "params": result.params,
             "reward_terms": {"reward_function": reward},
             "episode_status": status or result.status,

@@ -941,6 +941,11 @@ class RaceObjects:
         self._reverse = False
 
     @property
+    def bot_crashes(self) -> int:
+        """Bot cars that ran into the car this episode (the bots paused; the car is not at fault)."""
+        return self._bots.crash_count if self._bots else 0
+
+    @property
     def slots(self) -> int:
         """How many objects this race has in every episode (the world's object slots)."""
         return self.race.obstacle_count + self.race.bot_car_count

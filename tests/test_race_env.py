@@ -143,3 +143,33 @@ def test_box_colours_change_with_the_track_colour_randomization() -> None:
     env.reset()
     assert first.shape == (1, 3) and not np.array_equal(first, env._box_colors)
     assert as_boxes(env.objects).shape == (1, 6)
+
+
+def test_the_sim_trace_of_a_race_with_objects_has_the_simapps_crash_column(tmp_path: Path) -> None:
+    import pandas as pd
+
+    from common.simtrace import COLUMNS, OBSTACLE_COLUMN, SimTraceRecorder
+
+    env = RacerEnv(track="reinvent_base", race=ONE_BOX, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
+    env.reset(seed=0, options={"start_index": 0})
+    box = env.objects[0]
+    recorder = SimTraceRecorder()
+    start = Pose(box.x - math.cos(box.yaw), box.y - math.sin(box.yaw), box.yaw)
+    index = int(env.track.project(np.array([[start.x, start.y]])).segment[0])
+    _, info = env.reset(seed=0, options={"start_index": index})
+    env.physics.reset(start)
+    env._place_objects()
+    recorder.reset(info, 0)
+    for _ in range(60):
+        _, reward, terminated, truncated, info = env.step(0)
+        recorder.step(0, info, reward, terminated or truncated)
+        if terminated:
+            break
+    (tmp_path / "0-iteration.csv").write_text(recorder.take())
+    trace = pd.read_csv(tmp_path / "0-iteration.csv")
+    assert list(trace.columns) == [*COLUMNS, OBSTACLE_COLUMN]
+    assert trace["episode_status"].iloc[-1] == "crashed" and trace[OBSTACLE_COLUMN].tolist()[-1] == 1
+    assert trace[OBSTACLE_COLUMN].iloc[0] == 0
+    plain = RacerEnv(track="reinvent_base")
+    _, info = plain.reset(seed=0)
+    assert OBSTACLE_COLUMN not in info  # a time trial keeps DeepRacer's 17 columns

@@ -384,3 +384,34 @@ def test_deepracer_utils_reads_the_run_from_s3(rollout, s3_server):
     log.load()
     _, local = _load(rollout["dir"])
     assert len(log.dataframe()) == len(local)
+
+
+def test_deepracer_utils_loads_an_object_avoidance_evaluation(rollout, tmp_path):
+    # The 18th column of a race with objects (the simapp's obstacle_crash_counter) is read, and dropped, by
+    # deepracer-utils' DeepRacerLog as it reads DeepRacer's own OA sim-traces.
+    from common.race import RaceConfig
+    from common.simtrace import OBSTACLE_COLUMN
+
+    folder = tmp_path / "runs" / "run"
+    shutil.copytree(rollout["dir"], folder)
+    race = RaceConfig(race_type="OBJECT_AVOIDANCE", object_avoidance={"number_of_obstacles": 3})
+    env = RacerEnv(track="reinvent_base", race=race)
+    rec, rng = SimTraceRecorder(), np.random.default_rng(0)
+    for episode in range(2):
+        _, info = env.reset(seed=episode)
+        rec.reset(info, episode)
+        done = False
+        while not done:
+            action = int(rng.integers(env.action_space.n))
+            _, reward, term, trunc, info = env.step(action)
+            done = term or trunc
+            rec.step(action, info, reward, done)
+    text = rec.take()
+    assert text.splitlines()[0].endswith(f",pause_duration,{OBSTACLE_COLUMN}")
+    target = tmp_path / simtrace_key("run", "evaluation", 0, evaluation=evaluation_stamp(time.time()))
+    target.parent.mkdir(parents=True)
+    target.write_text(text)
+    log = DeepRacerLog(str(folder))
+    log.load_evaluation_trace()
+    df = log.dataframe()
+    assert df["episode"].nunique() == 2 and set(df.columns) >= LOADED_COLUMNS - {"worker", "unique_episode"}
