@@ -178,6 +178,7 @@ def row_from_step(
         track_len=p["track_length"],
         tstamp=p["sim_time"],
         episode_status=info["episode_status"],
+        pause_duration=float(info.get("pause_duration", 0.0)),
     ) + ([str(int(info[OBSTACLE_COLUMN]))] if OBSTACLE_COLUMN in info else [])
 
 

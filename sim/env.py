@@ -31,8 +31,8 @@ from common.simtrace import OBSTACLE_COLUMN
 from sim.augment import augment_frame, needs_color
 from sim.camera import CameraSpec, GroundCamera, MujocoCamera, StereoGroundCamera
 from sim.lidar import Lidar
-from sim.objects import RaceObjects, WorldObject, as_boxes, start_pose
-from sim.physics import CarPhysics
+from sim.objects import RaceObjects, WorldObject, as_boxes, reset_pose, start_pose
+from sim.physics import CarPhysics, Pose
 from sim.reward import RewardFunction, RewardFunctionError, example_path, load_reward_function
 from sim.task import RacingTask, Status, StepResult
 from sim.texture import (
@@ -80,6 +80,7 @@ class RacerEnv(gym.Env):
         self.objects: list[WorldObject] = []
         self._box_colors: np.ndarray | None = None
         self._crashes = 0
+        self._resets_left, self._pause_s, self._reverse = 0, 0.0, False
         self._build_world()
         self.task = RacingTask(self.track, road=RoadMask(self.track, self.frame))
         self.observation_space = self._observation_space()
@@ -145,6 +146,11 @@ class RacerEnv(gym.Env):
         self._randomize(rng)
         self.objects = self.race.reset(rng, reverse)
         self._crashes = 0
+        # DeepRacer's evaluation puts the car back after an off-track or a crash, with a penalty, up to
+        # NUMBER_OF_RESETS times; training ends the episode (markov/rollout_worker.py passes 0 resets).
+        self._resets_left = self.config.race.penalties.number_of_resets if options.get("evaluation") else 0
+        self._pause_s = 0.0
+        self._reverse = reverse
         pose = self.task.start_pose(index, reverse)
         if self.objects and options.get("start_index") is None:
             # A training start within 1 m of an object moves to the other lane (simapp RolloutCtrl.
@@ -176,15 +182,20 @@ class RacerEnv(gym.Env):
             ph.pose, self._last.params["progress"], self.task.start_fraction
         )
         self._crashes += int(crashed)
+        sim_time = ph.time + self._pause_s
         result = self.task.observe(
-            ph.pose, ph.wheel_positions(), ph.upright, ph.time, requested, objects=self.objects, crashed=crashed
+            ph.pose, ph.wheel_positions(), ph.upright, sim_time, requested, objects=self.objects, crashed=crashed
         )
         reward = self.reward_fn(result.params, step=result.params["steps"])
-        truncated = not result.terminated and self.task.steps >= self.config.time_limit_steps
+        pause = self._penalty_reset(result) if result.terminated else 0.0
+        terminated = result.terminated and not pause
+        truncated = not terminated and self.task.steps >= self.config.time_limit_steps
         status = Status.TIME_UP if truncated else result.status
         self._last = result
         info = self._info(result, reward, status)
-        return self._observe(), reward, result.terminated, truncated, info
+        if pause:
+            info["pause_duration"] = pause
+        return self._observe(), reward, terminated, truncated, info
 
     def render(self) -> np.ndarray | None:
         """Top-down RGB view of the track with the car (``render_mode="rgb_array"``)."""
@@ -237,6 +248,38 @@ class RacerEnv(gym.Env):
             # a policy must not learn to avoid one colour.
             self._box_colors = rng.integers(30, 226, (self.race.slots, 3)).astype(np.uint8)
         self._gain = _lighting_gain(rng, dr.lighting) if dr.lighting else None
+
+    def _penalty_reset(self, result: StepResult) -> float:
+        """An evaluation reset (simapp ``RolloutCtrl._judge_action_at_run_phase`` and
+        ``_get_car_reset_model_state``): after an off-track, crash, reversal or immobilization with resets left, the
+        car is put back on the track (behind a nearby obstacle, in the other lane) and the clock runs on by the
+        penalty, which lands in the lap time. Returns the penalty in seconds; 0 when the episode ends instead."""
+        penalties = self.config.race.penalties
+        by_status = {
+            Status.OFF_TRACK: penalties.off_track_penalty,
+            Status.CRASHED: penalties.collision_penalty,
+            Status.REVERSED: penalties.reverse_penalty_s,
+            Status.IMMOBILIZED: penalties.immobilized_penalty,
+        }
+        if self._resets_left <= 0 or result.status not in by_status:
+            return 0.0
+        self._resets_left -= 1
+        # After a crash the car is put back where it is; otherwise where it was a step ago, still on the track.
+        at = result if result.status == Status.CRASHED else self._last
+        pose = reset_pose(
+            self.track,
+            self._reverse,
+            float(at.params["projection_distance"]),
+            Pose(*(at.params[k] for k in ("x", "y")), 0.0),
+            self.objects,
+            behind_m=penalties.reset_behind_dist,
+        )
+        self.physics.reset(pose)
+        self._place_objects()
+        self.task.relocate(pose)
+        penalty = by_status[result.status]
+        self._pause_s += penalty
+        return max(penalty, 1e-9)  # a 0 s penalty still resets
 
     def _place_objects(self) -> None:
         """Move the MuJoCo scene's object slots to this step's objects (after every physics reset too: it

@@ -130,6 +130,18 @@ class RacingTask:
         s = float(proj.s[0])
         self.state = EpisodeState(track, reverse, start_s, s, _wrap(s - start_s, track), int(proj.segment[0]))
 
+    def relocate(self, pose: Pose) -> None:
+        """The car was put back on the track (an evaluation reset): progress goes on from where its front point is
+        now (back a little, behind an obstacle), and the reversed/immobilized window starts afresh."""
+        st = self.state
+        assert st is not None, "begin() an episode first"
+        front = pose.ahead(FRONT_POINT_M)
+        proj = st.track.project(front[None])
+        s = float(proj.s[0])
+        st.travelled += _wrap(s - st.last_s, st.track)
+        st.last_s, st.segment = s, int(proj.segment[0])
+        st.history.clear()
+
     def observe(
         self,
         pose: Pose,

@@ -173,3 +173,37 @@ def test_the_sim_trace_of_a_race_with_objects_has_the_simapps_crash_column(tmp_p
     plain = RacerEnv(track="reinvent_base")
     _, info = plain.reset(seed=0)
     assert OBSTACLE_COLUMN not in info  # a time trial keeps DeepRacer's 17 columns
+
+
+def test_an_evaluation_puts_the_car_back_behind_the_box_with_the_collision_penalty(tmp_path: Path) -> None:
+    # simapp RolloutCtrl._get_car_reset_model_state: after a crash the car goes RESET_BEHIND_DIST behind the
+    # obstacle, in the lane the obstacle is not in, paused for COLLISION_PENALTY seconds.
+    penalties = {"number_of_resets": 2, "collision_penalty": 5.0, "reset_behind_dist": 1.0}
+    race = RaceConfig.model_validate(ONE_BOX.model_dump() | {"penalties": penalties})
+    env = RacerEnv(track="reinvent_base", race=race, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
+    env.reset(seed=0, options={"start_index": 0})
+    box = env.objects[0]
+    start = Pose(box.x - math.cos(box.yaw), box.y - math.sin(box.yaw), box.yaw)
+    index = int(env.track.project(np.array([[start.x, start.y]])).segment[0])
+    env.reset(seed=0, options={"start_index": index, "evaluation": True})
+    env.physics.reset(start)
+    env._place_objects()
+    for _ in range(40):
+        _, _, terminated, _, info = env.step(0)
+        if info["episode_status"] == "crashed":
+            break
+    assert info["episode_status"] == "crashed" and not terminated and info["pause_duration"] == 5.0
+    pose = info["pose"]
+    assert abs(pose.x - (box.x - 1.0)) < 0.05  # a metre behind it (this stretch runs along +x) ...
+    assert 0.25 < abs(pose.y - box.y) < 0.5  # ... in the other lane, half a track width across
+    _, _, _, _, after = env.step(0)
+    assert after["params"]["sim_time"] > 5.0  # the penalty runs on the lap's clock
+    training = RacerEnv(track="reinvent_base", race=race, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
+    training.reset(seed=0, options={"start_index": index})
+    training.physics.reset(start)
+    training._place_objects()
+    for _ in range(40):
+        _, _, terminated, _, info = training.step(0)
+        if terminated:
+            break
+    assert terminated and info["episode_status"] == "crashed"  # training: a crash ends the episode
