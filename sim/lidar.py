@@ -53,29 +53,20 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from common.sensors import LIDAR, LIDAR_MAX_RANGE_M, LIDAR_MIN_RANGE_M, LIDAR_SAMPLES, SECTOR_LIDAR, lidar_from_ranges
 from sim.physics import Pose
 from sim.world import OBJECT_GEOM_GROUP
 
-LIDAR_SAMPLES = 64
-"""``LIDAR_360_DEGREE_SAMPLE`` (markov/sensors/constants.py), ``TRAINING_LIDAR_SIZE``."""
 LIDAR_MIN_ANGLE = -2.61799
 """Radians, in the laser frame (``LIDAR_360_DEGREE_MIN_ANGLE``)."""
 LIDAR_MAX_ANGLE = 2.61799
 """Radians, in the laser frame (``LIDAR_360_DEGREE_MAX_ANGLE``)."""
-LIDAR_MIN_RANGE = 0.15
-"""Metres (``LIDAR_360_DEGREE_MIN_RANGE``)."""
-LIDAR_MAX_RANGE = 12.0
-"""Metres (``LIDAR_360_DEGREE_MAX_RANGE``)."""
+LIDAR_MIN_RANGE = LIDAR_MIN_RANGE_M
+LIDAR_MAX_RANGE = LIDAR_MAX_RANGE_M
 LIDAR_NOISE_STDDEV = 0.01
 """Metres, Gaussian, mean 0 (``LIDAR_360_DEGREE_NOISE_STDDEV``, ``_MEAN``)."""
 LIDAR_HZ = 10.0
 """Scan rate (``update_rate`` in urdf/deepracer/racecar.gazebo); the camera's is 15 Hz."""
-LIDAR_CLIP = (0.15, 1.0)
-"""LIDAR observation: ``ObservationClippingFilter(0.15, 1.0)`` (markov/sagemaker_graph_manager.py)."""
-NUMBER_OF_LIDAR_SECTORS = 8
-"""SECTOR_LIDAR sectors (markov/environments/constants.py)."""
-SECTOR_LIDAR_CLIPPING_DIST = 0.5
-"""SECTOR_LIDAR: a sector reads 1 when its nearest range is below this, metres (ditto)."""
 
 _CHASSIS_ABOVE_BASE_M = 0.023249  # base_link_joint, urdf/deepracer/deepracer_*_lidar.urdf
 _LASER_ON_CHASSIS = (0.02913, 0.0, 0.16145)  # hokuyo_joint xyz, ditto; rpy (0, 0, 3.1416)
@@ -150,26 +141,16 @@ class Lidar:
         return _finish(self._dist, s, rng)
 
     def observe(self, pose: Pose, rng: np.random.Generator | None = None) -> np.ndarray:
-        """The LIDAR observation: (64,) float32 in [0.15, 1.0]."""
-        return lidar_observation(self.scan(pose, rng))
+        """The LIDAR observation: (64,) float32 in [0.15, 1.0] (``common/sensors.py: lidar_from_ranges``)."""
+        return lidar_from_ranges(LIDAR, self.scan(pose, rng))
 
 
 class SectorLidar(Lidar):
-    """DeepRacer's SECTOR_LIDAR: (8,) float32, 1.0 where a sector's nearest range is below 0.5 m."""
-
-    def __init__(
-        self,
-        model: mujoco.MjModel,
-        data: mujoco.MjData,
-        spec: LidarSpec | None = None,
-        num_sectors: int = NUMBER_OF_LIDAR_SECTORS,
-        clipping_dist: float = SECTOR_LIDAR_CLIPPING_DIST,
-    ) -> None:
-        super().__init__(model, data, spec)
-        self.num_sectors, self.clipping_dist = num_sectors, clipping_dist
+    """DeepRacer's SECTOR_LIDAR: (8,) float32, 1.0 where a sector's nearest range is below 0.5 m (the filter is
+    ``common/sensors.py: lidar_from_ranges``, the one owner of the sensors' input filters)."""
 
     def observe(self, pose: Pose, rng: np.random.Generator | None = None) -> np.ndarray:
-        return sector_observation(self.scan(pose, rng), self.num_sectors, self.clipping_dist)
+        return lidar_from_ranges(SECTOR_LIDAR, self.scan(pose, rng))
 
 
 def _finish(dist: np.ndarray, spec: LidarSpec, rng: np.random.Generator | None) -> np.ndarray:
@@ -180,37 +161,6 @@ def _finish(dist: np.ndarray, spec: LidarSpec, rng: np.random.Generator | None) 
     if rng is not None and spec.noise_stddev > 0:
         ranges = ranges + rng.normal(0.0, spec.noise_stddev, ranges.shape)
     return np.clip(ranges, spec.min_range, spec.max_range).astype(np.float32)
-
-
-def lidar_observation(ranges: np.ndarray) -> np.ndarray:
-    """LIDAR: the scan clipped to [0.15, 1.0] (``ObservationClippingFilter(0.15, 1.0)``), float32."""
-    return np.clip(ranges, *LIDAR_CLIP).astype(np.float32)
-
-
-def discretized_sector_observation(
-    ranges: np.ndarray, num_sectors: int, num_values_per_sector: int, clipping_dist: float
-) -> np.ndarray:
-    """``ObservationSectorDiscretizeFilter.filter`` (markov/filters/observation/observation_sector_discretize_filter.py)
-    on a scan: per sector of consecutive samples, a one-hot of ``floor(min(sector, clip) / (clip / values))``
-    without its last ("nothing detected") column; (num_sectors * num_values_per_sector,) float32."""
-    num_sectors = max(num_sectors, 1)
-    values = max(num_values_per_sector, 1)
-    clip = max(min(clipping_dist, LIDAR_MAX_RANGE), LIDAR_MIN_RANGE)
-    r = np.where(np.isinf(ranges), clip, np.asarray(ranges, np.float64))
-    nearest = np.minimum(r.reshape(num_sectors, -1).min(axis=1), clip)
-    index = np.clip(np.floor(nearest / (clip / values)), 0, values).astype(int)
-    onehot = np.zeros((num_sectors, values + 1), np.float32)
-    onehot[np.arange(num_sectors), index] = 1.0
-    return onehot[:, :-1].reshape(-1)
-
-
-def sector_observation(
-    ranges: np.ndarray,
-    num_sectors: int = NUMBER_OF_LIDAR_SECTORS,
-    clipping_dist: float = SECTOR_LIDAR_CLIPPING_DIST,
-) -> np.ndarray:
-    """SECTOR_LIDAR: (num_sectors,) float32, 1.0 where the sector's nearest range is below ``clipping_dist``."""
-    return discretized_sector_observation(ranges, num_sectors, 1, clipping_dist)
 
 
 def analytic_ranges(

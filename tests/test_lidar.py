@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 
 from sim.lidar import (
-    LIDAR_CLIP,
     LIDAR_MAX_RANGE,
     LIDAR_MIN_RANGE,
     Lidar,
@@ -24,9 +23,6 @@ from sim.lidar import (
     SectorLidar,
     analytic_ranges,
     analytic_scan,
-    discretized_sector_observation,
-    lidar_observation,
-    sector_observation,
 )
 from sim.physics import CarPhysics, Pose
 from sim.texture import TextureFrame
@@ -86,7 +82,6 @@ def test_spec_is_deepracers() -> None:
     # deepracer_stereo_cam_lidar.urdf: base_link_joint z 0.023249, hokuyo_joint xyz (0.02913, 0, 0.16145) yaw 3.1416
     assert spec.height_m == pytest.approx(0.023249 + 0.16145)
     assert (spec.forward_m, spec.left_m, spec.yaw) == (0.02913, 0.0, 3.1416)
-    assert LIDAR_CLIP == (0.15, 1.0)  # ObservationClippingFilter(0.15, 1.0)
 
 
 def test_scan_sweeps_anticlockwise_from_front_left_with_the_blind_cone_ahead() -> None:
@@ -201,38 +196,6 @@ def test_noise_is_gaussian_one_centimetre_and_seeded(world) -> None:
     assert np.all(noisy[:, 0] == np.float32(LIDAR_MAX_RANGE))  # misses: 12 + noise, clamped to 12
 
 
-def simapp_sector_filter(observation: np.ndarray, num_sectors: int, values: int, clipping_dist: float) -> np.ndarray:
-    """``ObservationSectorDiscretizeFilter.filter`` step by step, as deepracer-simapp writes it."""
-    observation = np.where(np.isinf(observation), clipping_dist, observation)
-    observation = np.min(observation.reshape(-1, int(observation.shape[0] / num_sectors)), axis=1)
-    np.minimum(observation, clipping_dist, out=observation)
-    observation = np.floor(observation / (clipping_dist / values)).astype(int)
-    observation = np.clip(observation, 0, values)
-    one_hot = np.zeros((observation.size, values + 1))
-    one_hot[np.arange(observation.size), observation] = 1
-    one_hot = np.delete(one_hot, -1, axis=1)
-    return one_hot.reshape(-1).astype(float)
-
-
-def test_sector_thresholds_as_the_simapp_filter() -> None:
-    ranges = np.full(64, 12.0)
-    ranges[3] = 0.49  # sector 0: below 0.5 -> 1
-    ranges[8:16] = 0.5  # sector 1: exactly 0.5 -> 0 (floor(0.5 / 0.5) = 1, the "nothing" column)
-    ranges[23] = 0.15  # sector 2
-    ranges[40] = np.inf  # sector 5: inf counts as the clipping distance -> 0
-    ranges[63] = 0.2  # sector 7
-    obs = sector_observation(ranges)
-    assert obs.shape == (8,) and obs.dtype == np.float32
-    np.testing.assert_array_equal(obs, [1, 0, 1, 0, 0, 0, 0, 1])
-    np.testing.assert_array_equal(obs, simapp_sector_filter(ranges.copy(), 8, 1, 0.5))
-    rng = np.random.default_rng(0)
-    for _ in range(200):
-        r = rng.uniform(0.15, 1.5, 64)
-        sectors, values, clip = [(8, 1, 0.5), (4, 2, 0.5), (16, 3, 1.2), (8, 4, 20.0)][int(rng.integers(4))]
-        expected = simapp_sector_filter(r.copy(), sectors, values, min(max(clip, 0.15), 12.0))
-        np.testing.assert_array_equal(discretized_sector_observation(r, sectors, values, clip), expected)
-
-
 def test_sector_lidar_sees_a_box_within_half_a_metre(world) -> None:
     model, data = world
     pose = Pose(0.5, 0.5, 2.0)
@@ -246,11 +209,6 @@ def test_sector_lidar_sees_a_box_within_half_a_metre(world) -> None:
     # To the left (sector k spans 30° + 37.5° k to 30° + 37.5° (k + 1)), face at 0.25 m, ±31° wide.
     set_objects(model, data, np.array([box_at(pose, 0.45, 90.0)]))
     np.testing.assert_array_equal(lidar.observe(pose), [1, 1, 1, 0, 0, 0, 0, 0])
-
-
-def test_lidar_observation_clips() -> None:
-    ranges = np.array([0.15, 0.3, 1.0, 1.5, 12.0, np.inf], np.float32)
-    np.testing.assert_array_equal(lidar_observation(ranges), np.float32([0.15, 0.3, 1.0, 1.0, 1.0, 1.0]))
 
 
 # --- object slots in the world --------------------------------------------------------------------------
