@@ -100,7 +100,7 @@ def test_sample_params_has_every_key_with_plausible_types() -> None:
 
 
 def test_examples_are_shipped_as_plain_files() -> None:
-    assert set(EXAMPLES) == {*AWS_EXAMPLES, DEFAULT_EXAMPLE, "racing_line"}  # racing_line: racer's racing example
+    assert set(EXAMPLES) == {*AWS_EXAMPLES, DEFAULT_EXAMPLE, "racing_line", "object_avoidance"}  # racer's own two
     for name, path in EXAMPLES.items():
         assert path == example_path(name) and path.is_file() and path.suffix == ".py"
     assert not (example_path("default").parent / "__init__.py").exists()
