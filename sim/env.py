@@ -201,7 +201,7 @@ class RacerEnv(gym.Env):
         """Top-down RGB view of the track with the car (``render_mode="rgb_array"``)."""
         if self.render_mode != "rgb_array":
             return None
-        return top_down(self.track, self.texture, self.frame, [self.physics.pose])
+        return top_down(self.track, self.texture, self.frame, [self.physics.pose], objects=self.objects)
 
     def close(self) -> None:
         """Release the renderer, if any."""

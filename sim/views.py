@@ -1,12 +1,14 @@
-"""Pictures for people: the track from above with cars on it, and a camera view beside it."""
+"""Pictures for people: the track from above with cars, obstacles and bot cars on it, and a camera view beside it."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
 
+from sim.objects import BOT_CAR, BOT_CAR_OBSTACLE, WorldObject
 from sim.physics import Pose
 from sim.texture import TextureFrame
 from sim.track import Track
@@ -14,25 +16,78 @@ from sim.track import Track
 CAR_LENGTH_M = 0.28
 CAR_WIDTH_M = 0.2
 
+CAR_COLOR = (220, 30, 30)
+"""RGB of the car being driven."""
+BOX_COLOR = (255, 140, 0)
+"""RGB of a box obstacle (any of DeepRacer's box models): orange, apart from the road, its lines and the car."""
+BOT_COLOR = (40, 110, 255)
+"""RGB of a bot car, moving or parked as an obstacle: blue."""
+_NOSE_COLOR = (255, 255, 255)
 
-def top_down(track: Track, texture: np.ndarray, frame: TextureFrame, poses: list[Pose], width: int = 800) -> np.ndarray:
-    """RGB image of the track texture scaled to ``width`` pixels, with each pose drawn as a red car."""
+
+def object_color(obj: WorldObject) -> tuple[int, int, int]:
+    """The colour an object is drawn in from above: :data:`BOT_COLOR` for bot cars (moving or parked), else
+    :data:`BOX_COLOR`."""
+    return BOT_COLOR if obj.kind in (BOT_CAR, BOT_CAR_OBSTACLE) else BOX_COLOR
+
+
+def _pixels(frame: TextureFrame, scale: float, world: np.ndarray) -> np.ndarray:
+    return np.round(frame.to_pixels(np.asarray(world, np.float64).reshape(-1, 2)) * scale).astype(np.int32)
+
+
+def _rectangle(x: float, y: float, yaw: float, length: float, width: float) -> np.ndarray:
+    """(4, 2) world corners of a ``length`` × ``width`` rectangle centred on (x, y), its length along ``yaw``."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    half = ((length / 2, width / 2), (-length / 2, width / 2), (-length / 2, -width / 2), (length / 2, -width / 2))
+    return np.array([(x + c * a - s * b, y + s * a + c * b) for a, b in half])
+
+
+def _draw_vehicle(
+    img: np.ndarray,
+    frame: TextureFrame,
+    scale: float,
+    x: float,
+    y: float,
+    yaw: float,
+    length: float,
+    width: float,
+    color: tuple[int, int, int],
+    nose: bool,
+) -> None:
+    """A filled rotated rectangle and, for something that drives, a white line from its centre to its nose."""
+    cv2.fillPoly(img, [_pixels(frame, scale, _rectangle(x, y, yaw, length, width))], color, cv2.LINE_AA)
+    if nose:
+        ends = _pixels(frame, scale, [(x, y), (x + length * math.cos(yaw), y + length * math.sin(yaw))])
+        cv2.line(img, tuple(int(v) for v in ends[0]), tuple(int(v) for v in ends[1]), _NOSE_COLOR, 2, cv2.LINE_AA)
+
+
+def draw_objects(img: np.ndarray, frame: TextureFrame, objects: Sequence[WorldObject], scale: float = 1.0) -> None:
+    """Draw ``objects`` into ``img`` (RGB, ``frame``'s pixels × ``scale``) in place: each its footprint (real length
+    × width, rotated by its yaw), boxes in :data:`BOX_COLOR`, bot cars in :data:`BOT_COLOR` with a nose line."""
+    for o in objects:
+        is_car = o.kind in (BOT_CAR, BOT_CAR_OBSTACLE)
+        _draw_vehicle(img, frame, scale, o.x, o.y, o.yaw, o.length, o.width, object_color(o), nose=is_car)
+
+
+def top_down(
+    track: Track,
+    texture: np.ndarray,
+    frame: TextureFrame,
+    poses: list[Pose],
+    width: int = 800,
+    objects: Sequence[WorldObject] | None = None,
+) -> np.ndarray:
+    """RGB image of the track texture scaled to ``width`` pixels, with ``objects`` (obstacles and bot cars, see
+    :func:`draw_objects`) and each pose drawn as a red car on top."""
     scale = width / texture.shape[1]
     img = cv2.resize(texture, (width, int(round(texture.shape[0] * scale))), interpolation=cv2.INTER_AREA)
+    if objects:
+        draw_objects(img, frame, objects, scale)
     for pose in poses:
-        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-        corners = [
-            (CAR_LENGTH_M / 2, CAR_WIDTH_M / 2),
-            (-CAR_LENGTH_M / 2, CAR_WIDTH_M / 2),
-            (-CAR_LENGTH_M / 2, -CAR_WIDTH_M / 2),
-            (CAR_LENGTH_M / 2, -CAR_WIDTH_M / 2),
-        ]
-        world = np.array([(pose.x + c * a - s * b, pose.y + s * a + c * b) for a, b in corners])
-        px = np.round(frame.to_pixels(world) * scale).astype(np.int32)
-        cv2.fillPoly(img, [px], (220, 30, 30), cv2.LINE_AA)
-        nose = np.round(frame.to_pixels(pose.ahead(CAR_LENGTH_M)[None]) * scale).astype(np.int32)[0]
-        centre = np.round(frame.to_pixels(np.array([[pose.x, pose.y]])) * scale).astype(np.int32)[0]
-        cv2.line(img, tuple(int(v) for v in centre), tuple(int(v) for v in nose), (255, 255, 255), 2, cv2.LINE_AA)
+        _draw_vehicle(img, frame, scale, pose.x, pose.y, pose.yaw, CAR_LENGTH_M, CAR_WIDTH_M, CAR_COLOR, nose=False)
+        nose = _pixels(frame, scale, pose.ahead(CAR_LENGTH_M)[None])[0]
+        centre = _pixels(frame, scale, [(pose.x, pose.y)])[0]
+        cv2.line(img, tuple(int(v) for v in centre), tuple(int(v) for v in nose), _NOSE_COLOR, 2, cv2.LINE_AA)
     return img
 
 

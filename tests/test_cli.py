@@ -59,3 +59,50 @@ def test_bench_env_json_has_rate_and_parts(tmp_path):
     assert result["steps_per_s"] > 0
     for part in ("physics", "camera", "task", "reward"):
         assert result[f"{part}_us_per_step"] > 0
+    # Without --sensor or --race-type the JSON is what it always was.
+    assert not {"sensor", "race_type", "objects", "lidar_us_per_step", "objects_us_per_step"} & set(result)
+
+
+def test_bench_env_with_sensors_and_a_race_adds_them_and_their_parts(tmp_path):
+    out = tmp_path / "bench.json"
+    cmd = [sys.executable, "-m", "racer", "bench", "env", "--steps", "100", "--repeats", "1", "--json", str(out)]
+    cmd += ["--sensor", "STEREO_CAMERAS,SECTOR_LIDAR", "--race-type", "OBJECT_AVOIDANCE", "--obstacles", "2"]
+    subprocess.run(cmd, check=True, capture_output=True, timeout=300)
+    result = json.loads(out.read_text())
+    assert result["steps_per_s"] > 0 and len(result["steps_per_s_runs"]) == 1
+    assert result["sensor"] == ["STEREO_CAMERAS", "SECTOR_LIDAR"]
+    assert result["race_type"] == "OBJECT_AVOIDANCE" and result["objects"] == 2
+    for part in ("physics", "camera", "lidar", "objects", "task", "reward"):
+        assert result[f"{part}_us_per_step"] > 0
+
+
+def test_bench_env_reports_none_for_the_parts_an_env_does_not_have():
+    from common.config import EnvConfig
+    from sim.bench import race_config
+
+    # A child process: bench_env pins its process to one core.
+    code = (
+        "import json, sys; from common.config import EnvConfig; from sim.bench import bench_env, race_config; "
+        "r = bench_env(EnvConfig(), steps=20, repeats=1, race=race_config('HEAD_TO_BOT', 0)); "
+        "sys.stdout.write(json.dumps(r))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True, timeout=300)
+    result = json.loads(done.stdout)
+    assert result["race_type"] == "HEAD_TO_BOT" and result["objects"] == 0
+    assert result["sensor"] == ["FRONT_FACING_CAMERA"]
+    assert result["lidar_us_per_step"] is None and result["objects_us_per_step"] is None
+    assert race_config("OBJECT_AVOIDANCE").obstacle_count == 6 and race_config("head_to_bot").bot_car_count == 3
+    assert race_config("TIME_TRIAL") == EnvConfig().race
+
+
+def test_bench_env_refuses_bad_sensor_and_race_options():
+    for args, message in (
+        (["--obstacles", "3"], "--obstacles needs --race-type"),
+        (["--race-type", "F1"], "--race-type 'F1' is not one of"),
+        (["--race-type", "TIME_TRIAL", "--obstacles", "2"], "--obstacles needs --race-type"),
+        (["--sensor", "LIDAR"], "exactly one camera"),
+        (["--sensor", "FRONT_FACING_CAMERA,RADAR"], "not a DeepRacer sensor"),
+    ):
+        result = runner.invoke(app, ["bench", "env", "--steps", "100", *args])
+        assert result.exit_code == 2, (args, result.output)
+        assert message in result.output and "Traceback" not in result.output

@@ -3,6 +3,7 @@ frame, and the MPEG-4 part 2 fallback where no H.264 encoder is installed."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -125,3 +126,106 @@ def test_without_an_h264_encoder_it_writes_mp4v_and_says_so(env, tmp_path, monke
     assert "no H.264 encoder here" in caplog.text and "browsers do not" in caplog.text
     frames, _ = read_video(path)
     assert abs(len(frames) - summary["frames"]) <= 1
+
+
+# --- object avoidance, head-to-bot, stereo cameras and LiDAR in the video ------------------------------------------
+
+
+def _oa_env(sensors: list[str] | None, tmp_path: Path, **race) -> RacerEnv:
+    from common.race import RaceConfig
+
+    kwargs = {}
+    if sensors:
+        space = tmp_path / "model_metadata.json"
+        space.write_text(
+            '{"action_space": [{"steering_angle": 0, "speed": 1.0}], "action_space_type": "discrete", '
+            f'"sensor": {json.dumps(sensors)}, "version": "5"}}'
+        )
+        kwargs["action_space"] = str(space)
+    return RacerEnv(track="reinvent_base", race=RaceConfig(**race), **kwargs)
+
+
+def _top_pixel(video: EpisodeVideo, x: float, y: float) -> tuple[int, int]:
+    """(row, column) in a composed frame of the world point (x, y) on the top-down panel (reinvent_base: wider than
+    tall, so the panel is not shrunk, only padded to the camera's height)."""
+    u, v = np.round(video._frame.to_pixels(np.array([[x, y]]))).astype(int)[0]
+    pad = (video.height - video._frame.height) // 2
+    return int(v) + pad, 160 * 3 + int(u)
+
+
+def test_the_top_down_panel_shows_the_boxes_where_they_are(tmp_path):
+    from sim.views import BOX_COLOR
+
+    env = _oa_env(None, tmp_path, race_type="OBJECT_AVOIDANCE", object_avoidance={"number_of_obstacles": 3})
+    try:
+        obs, _ = env.reset(seed=3)
+        with EpisodeVideo(tmp_path / "oa.mp4", env.track, env.texture, env.frame) as video:
+            plain = video.compose(obs, env.physics.pose)
+            picture = video.compose(obs, env.physics.pose, objects=env.objects)
+        assert len(env.objects) == 3
+        for o in env.objects:
+            r, c = _top_pixel(video, o.x, o.y)
+            assert (picture[r - 1 : r + 2, c - 1 : c + 2] == BOX_COLOR).all()
+            assert not (plain[r - 1 : r + 2, c - 1 : c + 2] == BOX_COLOR).all(axis=2).any()
+        assert np.array_equal(picture[:, :480], plain[:, :480])  # the camera panel is the same
+    finally:
+        env.close()
+
+
+def test_a_head_to_bot_episode_records_its_moving_bots(tmp_path):
+    from sim.views import BOT_COLOR
+
+    env = _oa_env(None, tmp_path, race_type="HEAD_TO_BOT", head_to_bot={"number_of_bot_cars": 2, "bot_car_speed": 0.5})
+    try:
+        path = tmp_path / "h2b.mp4"
+        summary = record_episode(env, lambda obs: STRAIGHT, path, max_steps=8, seed=0)
+        frames, _ = read_video(path)
+        assert abs(len(frames) - summary["frames"]) <= 1
+        # The last frame shows the bots where the env has them now (blue, within the codec's error).
+        last = cv2.cvtColor(frames[-1], cv2.COLOR_BGR2RGB).astype(int)
+        with EpisodeVideo(tmp_path / "x.mp4", env.track, env.texture, env.frame) as video:
+            for o in env.objects:
+                r, c = _top_pixel(video, o.x - 0.08 * np.cos(o.yaw), o.y - 0.08 * np.sin(o.yaw))
+                assert np.abs(last[r, c] - BOT_COLOR).max() < 60
+    finally:
+        env.close()
+
+
+def test_a_stereo_frame_shows_both_images_and_the_lidar_plot(tmp_path):
+    env = _oa_env(
+        ["STEREO_CAMERAS", "LIDAR"], tmp_path, race_type="OBJECT_AVOIDANCE", object_avoidance={"number_of_obstacles": 2}
+    )
+    try:
+        obs, _ = env.reset(seed=0)
+        assert obs["camera"].shape == (120, 160, 2)
+        with EpisodeVideo(tmp_path / "s.mp4", env.track, env.texture, env.frame) as video:
+            picture = video.compose(obs["camera"], env.physics.pose, objects=env.objects)
+            with_lidar = video.compose(obs["camera"], env.physics.pose, objects=env.objects, lidar=obs["lidar"])
+            right_only = obs["camera"].copy()
+            right_only[..., 0] = 0
+            no_left = video.compose(right_only, env.physics.pose)
+        assert picture.shape == (360, 960, 3)  # the panel keeps its size
+        # Left image on the left half of the panel at ×1.5 (180 rows, centred), right image on the right half.
+        left, right = picture[90:270, :240], picture[90:270, 240:480]
+        assert left.std() > 10 and right.std() > 10
+        assert no_left[100:230, 10:230].mean() < 5  # the left image blanked shows black on the left
+        assert no_left[100:230, 250:470].mean() > 20
+        # The LiDAR plot darkens and draws into the camera panel's bottom-right corner only.
+        changed = (with_lidar != picture).any(axis=2)
+        rows, cols = np.nonzero(changed)
+        assert changed.sum() > 100 and rows.min() >= 270 and cols.min() >= 390 and cols.max() < 480
+        # A whole episode with the dict observation goes through record_episode.
+        summary = record_episode(env, lambda o: 0, tmp_path / "rec.mp4", max_steps=3, seed=1)
+        assert summary["frames"] == summary["steps"] + 1
+    finally:
+        env.close()
+
+
+def test_a_sector_lidar_plot_and_a_bad_lidar(env, tmp_path):
+    obs, _ = env.reset(seed=1)
+    with EpisodeVideo(tmp_path / "sector.mp4", env.track, env.texture, env.frame) as video:
+        none = video.compose(obs, env.physics.pose, lidar=np.zeros(8, np.float32))
+        some = video.compose(obs, env.physics.pose, lidar=np.array([1, 0, 0, 0, 0, 0, 0, 0], np.float32))
+        assert (np.abs(some.astype(int) - none.astype(int)).sum(axis=2) > 100).sum() > 50  # one red wedge
+        with pytest.raises(ValueError, match="LIDAR"):
+            video.compose(obs, env.physics.pose, lidar=np.zeros(5, np.float32))

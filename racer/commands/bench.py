@@ -22,22 +22,60 @@ def env(
     repeats: Annotated[int, typer.Option(min=1, help="Timed runs; the median is reported.")] = 5,
     camera: Annotated[str, typer.Option(help="Camera path: ground or mujoco.")] = "ground",
     car_calibration: Car = None,
+    sensor: Annotated[
+        str | None,
+        typer.Option(help="model_metadata sensor list, comma-separated (STEREO_CAMERAS,LIDAR); default: the camera."),
+    ] = None,
+    race_type: Annotated[
+        str | None, typer.Option(help="TIME_TRIAL, OBJECT_AVOIDANCE (6 boxes) or HEAD_TO_BOT (3 bot cars).")
+    ] = None,
+    obstacles: Annotated[
+        int | None, typer.Option(min=0, help="Boxes (OBJECT_AVOIDANCE) or bot cars (HEAD_TO_BOT) instead of 6 / 3.")
+    ] = None,
     json_out: JsonOut = None,
 ) -> None:
     """Env steps per second on one core (physics + camera + reward), and its parts."""
     from common.car_calibration import CarCalibration, load_car
     from common.config import EnvConfig
-    from sim.bench import bench_env
+    from common.race import RaceType
+    from sim.bench import bench_env, race_config
 
+    sensors = [s.strip() for s in sensor.split(",") if s.strip()] if sensor is not None else None
+    if sensors is not None:
+        from common.sensors import sensor_problem
+
+        problem = sensor_problem(sensors) if sensors else "no sensor given"
+        if problem:
+            raise OptionError(f"--sensor {sensor!r}: {problem}")
+    race = None
+    if race_type is not None:
+        names = [t.value for t in RaceType]
+        if race_type.upper() not in names:
+            raise OptionError(f"--race-type {race_type!r} is not one of {', '.join(names)}")
+        if obstacles and race_type.upper() == RaceType.TIME_TRIAL:
+            raise OptionError("--obstacles needs --race-type OBJECT_AVOIDANCE or HEAD_TO_BOT")
+        race = race_config(race_type, obstacles)
+    elif obstacles is not None:
+        raise OptionError("--obstacles needs --race-type OBJECT_AVOIDANCE or HEAD_TO_BOT")
     car = load_car(car_calibration) if car_calibration else CarCalibration()
-    result = bench_env(EnvConfig(track=track, camera=camera, car=car), steps=steps, repeats=repeats)
+    config = EnvConfig(track=track, camera=camera, car=car)
+    result = bench_env(config, steps=steps, repeats=repeats, sensors=sensors, race=race)
     table = Table("figure", "value")
     table.add_row("env steps/s (median)", f"{result['steps_per_s']:.0f}")
     table.add_row("runs", ", ".join(f"{r:.0f}" for r in result["steps_per_s_runs"]))
-    for part in ("physics", "camera", "task", "reward"):
-        table.add_row(f"{part} µs/step", f"{result[f'{part}_us_per_step']:.1f}")
+    extended = "sensor" in result
+    if extended:
+        table.add_row("sensors", ", ".join(result["sensor"]))
+        table.add_row("race", f"{result['race_type']}, {result['objects']} objects")
+    parts = ("physics", "camera", "lidar", "objects", "task", "reward") if extended else _ENV_PARTS
+    for part in parts:
+        value = result[f"{part}_us_per_step"]
+        table.add_row(f"{part} µs/step", "-" if value is None else f"{value:.1f}")
     console.print(table)
     write_json(result, json_out)
+
+
+_ENV_PARTS = ("physics", "camera", "task", "reward")
 
 
 @app.command("transport")
@@ -162,6 +200,45 @@ def race(
         f"median best robust lap {result['best_robust_lap_s']} s, limit {result['limit_s']:.2f} s"
         + (f" ({ratio:.2f} x)" if ratio else "")
         + f", collapses {result['collapses']} ({result['collapses_recovered']} recovered)",
+        highlight=False,
+    )
+    write_json(result, json_out)
+
+
+@app.command("oa")
+def oa(
+    race_type: Annotated[
+        str, typer.Option(help="OBJECT_AVOIDANCE (3 random boxes) or HEAD_TO_BOT (2 bots at 0.5 m/s).")
+    ] = "OBJECT_AVOIDANCE",
+    minutes: Annotated[float, typer.Option(min=0.5, help="Training budget per seed, minutes.")] = 60.0,
+    seeds: Annotated[str, typer.Option(help="Comma-separated seeds; medians are over them.")] = "0",
+    track: Annotated[str, typer.Option(help="Track name or .npy path (a loop).")] = "reinvent_base",
+    workers: Annotated[int, typer.Option(min=1, help="Rollout workers.")] = 2,
+    eval_trials: Annotated[
+        int, typer.Option(min=1, help="Evaluation trials per checkpoint (start points, each its own placement).")
+    ] = 10,
+    png: Annotated[Path | None, typer.Option("--png", help="Completion and crash rate over time.")] = None,
+    json_out: JsonOut = None,
+) -> None:
+    """Learn object avoidance (or head-to-bot) from scratch with stereo cameras: time to robust, crash rate."""
+    from racer.bench_oa import BenchOASettings, bench_oa, oa_race, plot_oa
+    from sim.track import load_track
+
+    seed_numbers = int_list(seeds, "--seeds")
+    try:
+        race = oa_race(race_type)
+    except ValueError:
+        raise OptionError(f"--race-type {race_type!r}: racer bench oa races OBJECT_AVOIDANCE or HEAD_TO_BOT") from None
+    load_track(track)  # a bad track fails now, not after the first seed's training
+    settings = BenchOASettings(seed_numbers, minutes, race.race_type.value, track, workers, eval_trials)
+    result = bench_oa(settings, console)
+    if png:
+        plot_oa(result, png)
+    crash = result["final_crash_rate"]
+    console.print(
+        f"{result['race_type']}: median time to robust {result['time_to_robust_s']} s "
+        f"({result['robust_seeds']} of {len(result['seeds'])} seeds robust), final completion "
+        f"{result['final_completion']:.2f}, final crash rate {'-' if crash is None else f'{crash:.2f}'}",
         highlight=False,
     )
     write_json(result, json_out)
