@@ -792,12 +792,15 @@ def _object_geometry(
     )
 
 
-def object_params(track: Track, car_pose: Pose, objects: Sequence[WorldObject], reverse: bool) -> dict:
+def object_params(
+    track: Track, car_pose: Pose, objects: Sequence[WorldObject], reverse: bool, model_s: float | None = None
+) -> dict:
     """The reward function's object params: simapp ``track_geom/track_data.py: TrackData.get_object_reward_params``.
 
     ``track`` is the track as loaded, ``reverse`` the direction of travel, ``car_pose`` the car's base_link (the
     simapp's model pose; its "model point" is 0.14 m ahead), ``objects`` in the simapp's order (obstacles, then bot
-    cars). Values, per object in that order:
+    cars); ``model_s``, if given, is the arc length of the car's model point along the centre line in the direction
+    of travel (what the task's projection gives). Values, per object in that order:
 
     - ``objects_location``: ``[x, y]`` lists (not tuples).
     - ``objects_distance``: arc length of the nearest centre-line point, metres from the start line in the direction
@@ -819,7 +822,8 @@ def object_params(track: Track, car_pose: Pose, objects: Sequence[WorldObject], 
     geom = _geometry(track, reverse)
     locations = [[o.x, o.y] for o in objects]
     pdists, center_dists, left = _object_geometry(geom, tuple((o.x, o.y) for o in objects))
-    model_pdist = float(geom.center_s(car_pose.ahead(FRONT_POINT_M))[0])
+    # ``model_s``: the caller's projection of the same point (the task has it), which saves a whole-track search.
+    model_pdist = float(geom.center_s(car_pose.ahead(FRONT_POINT_M))[0]) if model_s is None else model_s
     bot_speeds = [o.speed for o in objects if o.kind == BOT_CAR]
     if bot_speeds:
         headings = [float(o.yaw) for o in objects]
@@ -831,9 +835,11 @@ def object_params(track: Track, car_pose: Pose, objects: Sequence[WorldObject], 
     prev_i, next_i = _find_prev_next([pdists[i] for i in order], model_pdist)
     prev_index, next_index = order[prev_i], order[next_i]
     # The frustum's list starts with the car itself (index 0: registered with BOT_CAR_DIMENSION at z 0, never in its
-    # own view, tested anyway as the simapp does), then the objects (index i + 1).
-    itself = WorldObject.of(BOT_CAR, car_pose.x, car_pose.y, car_pose.yaw)
-    in_frustum = {i for i, seen in enumerate(_in_view(car_pose, [itself, *objects])) if seen}
+    # own view, tested anyway as the simapp does), then the objects (index i + 1). Only entry ``next_index`` decides
+    # the param, so only it is tested (the frustum test is most of this function's time otherwise).
+    entry = (
+        WorldObject.of(BOT_CAR, car_pose.x, car_pose.y, car_pose.yaw) if next_index == 0 else objects[next_index - 1]
+    )
     return {
         "closest_objects": [prev_index, next_index],
         "objects_location": locations,
@@ -842,7 +848,7 @@ def object_params(track: Track, car_pose: Pose, objects: Sequence[WorldObject], 
         "objects_heading": headings,
         "objects_distance_from_center": list(center_dists),
         "objects_distance": list(pdists),
-        "object_in_camera": any(idx == next_index for idx in in_frustum),
+        "object_in_camera": bool(_in_view(car_pose, [entry])[0]),
     }
 
 

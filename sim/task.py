@@ -174,7 +174,7 @@ class RacingTask:
         progress = self._progress(st, s)
         params = self._params(st, pose, front, proj, on, progress, sim_time, command)
         if objects:
-            params.update(object_params(self.track, pose, objects, st.reversed))
+            params.update(object_params(self.track, pose, objects, st.reversed, model_s=s))
         params["is_crashed"] = bool(crashed)
         status = self._status(st, on, upright, progress, crashed) if count_step else Status.PREPARE
         return StepResult(params, status, status in TERMINAL)

@@ -207,3 +207,22 @@ def test_an_evaluation_puts_the_car_back_behind_the_box_with_the_collision_penal
         if terminated:
             break
     assert terminated and info["episode_status"] == "crashed"  # training: a crash ends the episode
+
+
+@pytest.mark.parametrize("reverse", [False, True])
+def test_the_envs_object_params_equal_a_fresh_computation(reverse: bool) -> None:
+    # The task hands object_params its own projection of the car's model point (a speed-up): same values.
+    from sim.objects import object_params
+
+    race = RaceConfig(race_type="OBJECT_AVOIDANCE", object_avoidance={"randomize_obstacle_locations": True})
+    env = RacerEnv(track="Spain_track", race=race)
+    env.reset(seed=3, options={"reverse": reverse})
+    rng = np.random.default_rng(0)
+    for _ in range(150):
+        _, _, terminated, truncated, info = env.step(int(rng.integers(env.action_space.n)))
+        fresh = object_params(env.track, info["pose"], env.objects, reverse)
+        for key, value in fresh.items():
+            got = info["params"][key]
+            assert got == pytest.approx(value, abs=1e-9) if key == "objects_distance" else got == value, key
+        if terminated or truncated:
+            env.reset(options={"reverse": reverse})
