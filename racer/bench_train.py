@@ -177,8 +177,13 @@ class SB3Actor:
         self.policy.set_training_mode(False)
         return self
 
-    def act_numpy(self, obs: np.ndarray, deterministic: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Actions for a uint8 (B, H, W, C) batch; log-probs and values are not needed by the evaluation."""
+    def act_numpy(
+        self, obs: np.ndarray, deterministic: bool = False, lidar: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Actions for a uint8 (B, H, W, C) batch; log-probs and values are not needed by the evaluation. The
+        benchmark drives the front camera only: ``lidar`` is always None (``run_trial`` passes it)."""
+        if lidar is not None:
+            raise ValueError("the SB3 benchmark policy has no LiDAR input")
         actions, _ = self.policy.predict(obs, deterministic=deterministic)  # transposes channels-last itself
         zeros = np.zeros(len(actions), np.float32)
         return np.asarray(actions), zeros, zeros

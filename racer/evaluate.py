@@ -26,6 +26,7 @@ def run_eval(
     sim_trace: Path | None = None,
     video: Path | None = None,
     car_calibration: str | Path | None = None,
+    resets: bool = True,
 ) -> dict:
     """Evaluate and return the record (summary and trials); optionally write a sim-trace CSV and a video."""
     runs = RunStore(open_store(store, s3_endpoint))
@@ -34,7 +35,7 @@ def run_eval(
         run = run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(car_calibration)})})
     version: int | str = int(checkpoint) if checkpoint.isdigit() else checkpoint
     settings = EvalSettings(
-        episodes=episodes, both_directions=both_directions, action_noise=action_noise, tracks=tracks
+        episodes=episodes, both_directions=both_directions, action_noise=action_noise, tracks=tracks, resets=resets
     )
     with tempfile.TemporaryDirectory(prefix="racer-eval-") as tmp:
         env_cfg = localize_env(run, runs, Path(tmp))
@@ -50,6 +51,7 @@ def run_eval(
 def write_video(runs: RunStore, run: RunConfig, env_cfg, version: int, settings: EvalSettings, path: Path) -> dict:
     """MP4 of the first evaluation trial (forward, from waypoint 0): the camera beside the car on the track."""
     from common.policy import load_policy
+    from common.sensors import camera_frame_size, split_observation
     from sim.env import RacerEnv
     from sim.video import EpisodeVideo
     from trainer.evaluator import run_trial
@@ -57,15 +59,26 @@ def write_video(runs: RunStore, run: RunConfig, env_cfg, version: int, settings:
     track = (settings.tracks or [env_cfg.track])[0]
     noise = env_cfg.randomization.model_copy(update={"action_noise": settings.action_noise, "random_start": False})
     env = RacerEnv(config=env_cfg.model_copy(update={"track": track, "randomization": noise}))
-    model, _ = load_policy(runs, run, env.actions, version, frame=env.observation_space.shape[:2])
+    model, _ = load_policy(runs, run, env.actions, version, frame=camera_frame_size(env.observation_space))
     with EpisodeVideo(path, env.track, env.texture, env.frame) as video:
 
-        def on_step(frame, info) -> None:
+        def on_step(observation, info) -> None:
             p = info["params"]
-            video.add(frame, info["pose"], f"progress {p['progress']:.1f} %  {info['episode_status']}")
+            # The video shows what the policy sees: the camera (both images of a stereo pair) and the LiDAR.
+            camera, lidar = split_observation(observation)
+            text = f"progress {p['progress']:.1f} %  {info['episode_status']}"
+            video.add(camera, info["pose"], text, env.objects, lidar)
 
         trial = run_trial(
-            env, model, run.hyperparams.stack_size, 0, False, settings.seed, settings.deterministic, on_step
+            env,
+            model,
+            run.hyperparams.stack_size,
+            0,
+            False,
+            settings.seed,
+            settings.deterministic,
+            on_step,
+            resets=settings.resets,
         )
     env.close()
     return {"path": str(path), "frames": trial.steps + 1, "status": trial.status, "progress": trial.progress}

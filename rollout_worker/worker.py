@@ -28,6 +28,7 @@ from common.policy import ActorCritic, action_space_spec, build_policy, checkpoi
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
 from common.redis_util import redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
+from common.sensors import ObsSpec, camera_frame_size, observation_spec, split_observation
 from common.simtrace import SimTraceRecorder
 from model_store import RunStore, StoreError, is_transient, open_store
 from model_store.localize import localize_env
@@ -61,6 +62,8 @@ class _Rollout:
     """Arrays being filled for the current segment."""
 
     obs: list = field(default_factory=list)
+    lidar: list = field(default_factory=list)
+    """The LiDAR part of each o_t (only with a LiDAR sensor)."""
     actions: list = field(default_factory=list)
     rewards: list = field(default_factory=list)
     terminated: list = field(default_factory=list)
@@ -99,13 +102,16 @@ class RolloutWorker:
         self.run: RunConfig = self.store_outage.call("read the run", partial(self.runs.read_config, self.opts.run_id))
         self.env = RacerEnv(config=self.store_outage.call("read the run's files", self._env_config))
         self.stack = FrameStack(self.run.hyperparams.stack_size)
-        obs_shape = (*self.env.observation_space.shape[:2], self.run.hyperparams.stack_size)
-        self.model: ActorCritic = build_policy(obs_shape, action_space_spec(self.env.actions), self.run.policy)
+        sensors = self.env.actions.sensor
+        self.obs_spec: ObsSpec = observation_spec(sensors, self.run.hyperparams.stack_size)
+        obs_shape = self.obs_spec.camera_shape(camera_frame_size(self.env.observation_space))
+        action_spec = action_space_spec(self.env.actions)
+        self.model: ActorCritic = build_policy(obs_shape, action_spec, self.run.policy, sensors)
         self.model.eval()
         self._load(first)
         self.seed = self.run.seed + 1000 * self.opts.worker_index
-        frame, info = self.env.reset(seed=self.seed)
-        self.obs = self.stack.reset(frame)
+        observation, info = self.env.reset(seed=self.seed)
+        self._observe(observation, first=True)
         self.simtrace.reset(info, self._episode)
         self._ep_reward = 0.0
 
@@ -169,25 +175,29 @@ class RolloutWorker:
         """Run ``segment_steps`` env steps with the current policy."""
         ro = _Rollout()
         for _ in range(self.run.segment_steps):
-            action, logp, value = self.model.act_numpy(self.obs[None])
+            action, logp, value = self.model.act_numpy(self.obs[None], lidar=self._lidar_batch(self.lidar))
             ro.obs.append(self.obs)
+            if self.lidar is not None:
+                ro.lidar.append(self.lidar)
             ro.actions.append(action[0])
             ro.logp.append(logp[0])
             ro.values.append(value[0])
             ro.episode_id.append(self._episode)
-            frame, reward, term, trunc, info = self.env.step(action[0])
+            observation, reward, term, trunc, info = self.env.step(action[0])
             self.simtrace.step(action[0], info, reward, term or trunc)
             self._ep_reward += reward
             ro.rewards.append(reward)
             ro.terminated.append(term)
             ro.truncated.append(trunc)
             if term or trunc:
-                final = self.stack.push(frame)
-                ro.next_values.append(self._value(final) if trunc else 0.0)
+                # The final observation is pushed onto the stack only to bootstrap a truncated step's value.
+                camera, lidar = split_observation(observation)
+                final = self.stack.push(camera)
+                ro.next_values.append(self._value(final, lidar) if trunc else 0.0)
                 ro.episodes.append(self._summary(info))
                 self._new_episode()
             else:
-                self.obs = self.stack.push(frame)
+                self._observe(observation)
                 ro.next_values.append(None)  # V(o_{t+1}) is the next step's value
         self.env_steps += self.run.segment_steps
         return self._segment(ro)
@@ -199,7 +209,7 @@ class RolloutWorker:
             for t, v in enumerate(ro.next_values)
         ]
         if nxt[-1] is None:
-            nxt[-1] = self._value(self.obs)
+            nxt[-1] = self._value(self.obs, self.lidar)
         actions = np.asarray(ro.actions)
         arrays = {
             "obs": np.stack(ro.obs),
@@ -213,10 +223,25 @@ class RolloutWorker:
             "next_values": np.asarray(nxt, np.float32),
             "episode_id": np.asarray(ro.episode_id, np.int64),
         }
+        if self.obs_spec.lidar:
+            arrays["lidar"] = np.stack(ro.lidar)
+            arrays["next_lidar"] = self.lidar[None]
         return Segment(self.opts.run_id, self.worker_id, self.policy_version, self.seed, arrays, ro.episodes)
 
-    def _value(self, obs: np.ndarray) -> float:
-        return float(self.model.act_numpy(obs[None])[2][0])
+    def _value(self, obs: np.ndarray, lidar: np.ndarray | None) -> float:
+        """V(o) of one stacked camera observation and its LiDAR vector (None without a LiDAR)."""
+        return float(self.model.act_numpy(obs[None], lidar=self._lidar_batch(lidar))[2][0])
+
+    @staticmethod
+    def _lidar_batch(lidar: np.ndarray | None) -> np.ndarray | None:
+        """A batch of one LiDAR vector, or None for a network without a LiDAR."""
+        return None if lidar is None else lidar[None]
+
+    def _observe(self, observation: np.ndarray | dict, first: bool = False) -> None:
+        """Take an env observation apart: its camera frame onto the stack (``self.obs``), its LiDAR vector (not
+        stacked, as in DeepRacer) into ``self.lidar``."""
+        camera, self.lidar = split_observation(observation)
+        self.obs = self.stack.reset(camera) if first else self.stack.push(camera)
 
     def _summary(self, info: dict) -> EpisodeSummary:
         p = info["params"]
@@ -229,8 +254,8 @@ class RolloutWorker:
     def _new_episode(self) -> None:
         self._episode += 1
         self._ep_reward = 0.0
-        frame, info = self.env.reset()
-        self.obs = self.stack.reset(frame)
+        observation, info = self.env.reset()
+        self._observe(observation, first=True)
         self.simtrace.reset(info, self._episode)
 
     def push(self, seg: Segment) -> None:

@@ -3,8 +3,9 @@
 Reward functions: the pre-start check, then 300 steps on three tracks (reinvent_base; Spain_track, clockwise with
 negative coordinates; 2022_summit_speedway), in both directions. The files that are broken upstream fail as they
 would in DeepRacer (the same exception on the same line) and racer says so in one line naming the file and line.
-model_metadata.json: what racer can honour loads and trains; the rest is refused in one line naming the file, the
-key and the value. hyperparameters.json: every file loads, and what racer does not use is listed.
+model_metadata.json: what racer can honour loads and trains (the stereo-camera and LiDAR files drive the env through a
+network built for their sensors); the rest is refused in one line naming the file, the key and the value.
+hyperparameters.json: every file loads, and what racer does not use is listed.
 """
 
 from __future__ import annotations
@@ -18,10 +19,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from common.action_space import ActionSpaceError, load_action_space
-from common.config import EnvConfig
+from common.config import EnvConfig, PolicyConfig, network_from_metadata
 from common.hyperparams import load_hyperparameters
+from common.policy import action_space_spec, build_policy
+from common.sensors import camera_frame_size, check_lidar, observation_spec, split_observation
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
 from sim.env import RacerEnv, preflight_reward
@@ -51,14 +55,17 @@ BROKEN_AT_SOME_POSES = {
 
 # model_metadata.json files racer refuses: the key and value the one-line error must name.
 REFUSED_METADATA = {
-    "dots_sac_stereo.json": 'sensor = ["STEREO_CAMERAS"]',
-    "dpr401_front_lidar_deep_discrete10.json": 'sensor = ["FRONT_FACING_CAMERA", "LIDAR"]',
-    "dpr401_stereo_deep_discrete10.json": 'sensor = ["STEREO_CAMERAS"]',
-    "dpr401_stereo_lidar_shallow_discrete5.json": 'sensor = ["STEREO_CAMERAS", "LIDAR"]',
+    "dots_sac_stereo.json": 'training_algorithm = "sac"',  # racer builds its stereo cameras, not SAC
     "drfc_default_sac.json": 'training_algorithm = "sac"',
-    "nishanthartham_stereo_ppo_continuous.json": 'sensor = ["STEREO_CAMERAS"]',
     "vishalloke_sac_stereo_INVERTED_STEERING.json": "steering_angle: Value error, low 20.0 is above high -30.0",
 }
+# model_metadata.json files with the other sensors racer builds (stereo cameras, LiDAR): they load and drive.
+SENSOR_METADATA = (
+    "dpr401_front_lidar_deep_discrete10.json",
+    "dpr401_stereo_deep_discrete10.json",
+    "dpr401_stereo_lidar_shallow_discrete5.json",
+    "nishanthartham_stereo_ppo_continuous.json",
+)
 
 
 def test_the_collection_is_as_large_as_the_issue_asks() -> None:
@@ -135,7 +142,9 @@ def test_community_model_metadata_loads_or_is_refused_in_one_line(name: str) -> 
         assert name in message and REFUSED_METADATA[name] in message and "\n" not in message, message
         return
     space = load_action_space(path)
-    assert space.sensor == ["FRONT_FACING_CAMERA"] and space.training_algorithm == "clipped_ppo"
+    # A file without a sensor list drives the front camera (the simapp's default).
+    assert space.sensor == json.loads(path.read_text()).get("sensor", ["FRONT_FACING_CAMERA"])
+    assert space.training_algorithm == "clipped_ppo"
     # It drives: the env takes each of its actions (or its range's corners) and the reward is told their values.
     env = RacerEnv(track="reinvent_base", action_space=str(path), camera="ground")
     env.reset(seed=0)
@@ -151,6 +160,32 @@ def test_community_model_metadata_loads_or_is_refused_in_one_line(name: str) -> 
         low = [space.action_space.steering_angle.low, space.action_space.speed.low]
         _, _, _, _, info = env.step(np.array(low, np.float32))
         assert (info["params"]["steering_angle"], info["params"]["speed"]) == pytest.approx(low)
+    env.close()
+
+
+@pytest.mark.parametrize("name", SENSOR_METADATA)
+def test_stereo_and_lidar_community_files_drive_the_env_through_their_network(name: str) -> None:
+    """The env gives the observation the file's sensors promise, and a network built for them acts on it."""
+    path = COMMUNITY / "metadata" / name
+    space = load_action_space(path)
+    spec = observation_spec(space.sensor)
+    env = RacerEnv(track="reinvent_base", action_space=str(path), camera="ground")
+    obs_shape = spec.camera_shape(camera_frame_size(env.observation_space))
+    cfg = PolicyConfig(network=network_from_metadata(space.neural_network))
+    torch.manual_seed(0)
+    model = build_policy(obs_shape, action_space_spec(space), cfg, space.sensor).eval()
+    observation, _ = env.reset(seed=0)
+    for _ in range(50):
+        camera, lidar = split_observation(observation)
+        assert camera.shape == obs_shape and camera.dtype == np.uint8
+        assert (lidar is None) == (spec.lidar is None)
+        if lidar is not None:
+            assert check_lidar(spec.lidar, lidar) is None
+        action, _, value = model.act_numpy(camera[None], lidar=None if lidar is None else lidar[None])
+        assert np.isfinite(value).all()
+        observation, _, terminated, truncated, _ = env.step(action[0])
+        if terminated or truncated:
+            observation, _ = env.reset()
     env.close()
 
 
@@ -228,9 +263,14 @@ def test_community_run_env_files_import_as_drfc_reads_them(tmp_path: Path) -> No
     # DR_LOCAL_S3_MODEL_PREFIX=training/$DR_WORLD_NAME/first-model: expanded as the shell DRfC sources it with.
     dots = merge_inputs(None, None, None, None, drfc_folder_with(tmp_path / "a", "dots_run.env"))
     assert dots.track == "reInvent2019_track" and dots.run_id == "training-reInvent2019_track-first-model"
-    assert dots.eval_episodes == 3 and "DR_EVAL_OFF_TRACK_PENALTY" in dots.drfc.unmapped
+    assert dots.eval_episodes == 3 and "DR_EVAL_OFF_TRACK_PENALTY" in dots.drfc.mapped
+    # A time trial: its DR_OA_*/DR_H2B_* lines (DRfC's template writes them all) place nothing.
+    assert dots.race.race_type == "TIME_TRIAL" and dots.race.obstacle_count == dots.race.bot_car_count == 0
+    assert dots.race.penalties.off_track_penalty == 5.0
     template = merge_inputs(None, None, None, None, drfc_folder_with(tmp_path / "b", "drfc_template-run.env"))
     assert template.track == "reinvent_base" and template.randomization["round_robin_divisions"] == 20
+    assert template.race.race_type == "TIME_TRIAL" and template.race.penalties.number_of_resets == 100
+    assert not [k for k in template.drfc.unmapped if k.startswith(("DR_OA_", "DR_H2B_", "DR_RACE_"))]
 
 
 def test_a_drfc_track_racer_does_not_ship_is_one_line_unless_track_is_given(tmp_path: Path) -> None:

@@ -226,3 +226,28 @@ def test_the_envs_object_params_equal_a_fresh_computation(reverse: bool) -> None
             assert got == pytest.approx(value, abs=1e-9) if key == "objects_distance" else got == value, key
         if terminated or truncated:
             env.reset(options={"reverse": reverse})
+
+
+def test_deepracers_evaluation_resets_count_in_the_trial_and_its_summary(tmp_path: Path) -> None:
+    # A policy that always turns hard leaves the track at once: with 2 resets allowed it is put back twice, then the
+    # third off-track ends the trial; the robust evaluation (no resets) ends at the first.
+    import torch
+
+    from common.policy import action_space_spec, build_policy
+    from trainer.evaluator import EvalSettings, evaluate, run_trial, summarize
+
+    penalties = {"number_of_resets": 2, "off_track_penalty": 3.0}
+    race = RaceConfig(race_type="TIME_TRIAL", penalties=penalties)
+    space = tmp_path / "model_metadata.json"
+    space.write_text(json.dumps({"action_space": [{"steering_angle": 30.0, "speed": 2.0}], "version": "5"}))
+    env = RacerEnv(track="reinvent_base", race=race, action_space=str(space))
+    torch.manual_seed(0)
+    model = build_policy((120, 160, 1), action_space_spec(env.actions))
+    trial = run_trial(env, model, 1, 0, False, 0, True, resets=True)
+    assert (trial.status, trial.resets, trial.penalty_s) == ("off_track", 2, 6.0)
+    assert summarize([trial])["resets"] == 2
+    robust = run_trial(env, model, 1, 0, False, 0, True)
+    assert (robust.status, robust.resets) == ("off_track", 0) and robust.steps < trial.steps
+    cfg = env.config.model_copy(update={"action_space": str(space)})
+    lockstep = evaluate(model, cfg, 1, EvalSettings(episodes=2, both_directions=False, resets=True))
+    assert [t.resets for t in lockstep] == [2, 2]

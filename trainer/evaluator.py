@@ -32,6 +32,7 @@ from common.policy import ActorCritic, load_policy
 from common.protocol import EvaluationSummary, PolicyVersion, ProtocolError
 from common.redis_util import redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
+from common.sensors import split_observation
 from common.simtrace import SimTraceRecorder
 from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
@@ -56,6 +57,10 @@ class EvalSettings:
     seed: int = 12345
     deterministic: bool = True
     """Act with the most likely action (DeepRacer evaluates this way); False = sample."""
+    resets: bool = False
+    """DeepRacer's evaluation: after an off-track or a crash the car is put back with the run's penalty
+    (``common/race.py: PenaltyConfig``, up to ``number_of_resets`` times). False (racer's robust evaluation, beside
+    training): a trial ends at the first one."""
 
 
 @dataclass
@@ -71,6 +76,10 @@ class Trial:
     lap_time_s: float | None
     trajectory: list[list[float]]
     """[x, y, commanded speed] per step, x/y at DeepRacer's point 0.14 m ahead of base_link."""
+    resets: int = 0
+    """Times the car was put back on the track (``EvalSettings.resets``)."""
+    penalty_s: float = 0.0
+    """Penalty seconds those resets added to the lap time."""
 
 
 def score(completion_rate: float, mean_progress: float, lap_times: list[float]) -> float:
@@ -91,6 +100,8 @@ def summarize(trials: list[Trial]) -> dict:
         "lap_times_s": laps,
         "best_lap_s": min(laps) if laps else None,
         "off_track": sum(t.status == "off_track" for t in trials),
+        "crashed": sum(t.status == "crashed" for t in trials),
+        "resets": sum(t.resets for t in trials),
         "score": score(completion, progress, laps),
     }
 
@@ -103,35 +114,46 @@ def run_trial(
     reverse: bool,
     seed: int,
     deterministic: bool,
-    on_step: Callable[[np.ndarray, dict], None] | None = None,
+    on_step: Callable[[np.ndarray | dict[str, np.ndarray], dict], None] | None = None,
     recorder: SimTraceRecorder | None = None,
     episode: int = 0,
+    resets: bool = False,
 ) -> Trial:
-    """Drive one episode from waypoint ``start`` and record it; ``on_step(frame, info)`` sees every frame and
-    ``recorder`` gets DeepRacer sim-trace rows (as ``episode``)."""
-    frame, info = env.reset(seed=seed, options={"start_index": start, "reverse": reverse})
+    """Drive one episode from waypoint ``start`` and record it; ``on_step(observation, info)`` sees every observation
+    as the env gives it (``common.sensors.split_observation`` takes it apart) and ``recorder`` gets DeepRacer sim-trace
+    rows (as ``episode``); ``resets`` as ``EvalSettings.resets``."""
+    observation, info = env.reset(seed=seed, options={"start_index": start, "reverse": reverse, "evaluation": resets})
     if recorder:
         recorder.reset(info, episode)
     stacker = FrameStack(stack)
+    frame, lidar = split_observation(observation)
     obs = stacker.reset(frame)
     if on_step:
-        on_step(frame, info)
+        on_step(observation, info)
     trajectory: list[list[float]] = []
+    pauses: list[float] = []
     done = False
     while not done:
-        action, _, _ = model.act_numpy(obs[None], deterministic=deterministic)
-        frame, reward, term, trunc, info = env.step(action[0])
+        batch_lidar = None if lidar is None else lidar[None]
+        action, _, _ = model.act_numpy(obs[None], deterministic=deterministic, lidar=batch_lidar)
+        observation, reward, term, trunc, info = env.step(action[0])
+        frame, lidar = split_observation(observation)  # the LiDAR is not stacked: the latest vector only
         obs = stacker.push(frame)
         if recorder:
             recorder.step(action[0], info, reward, term or trunc)
         p = info["params"]
         trajectory.append([round(p["x"], 4), round(p["y"], 4), round(p["speed"], 3)])
+        if "pause_duration" in info:
+            pauses.append(info["pause_duration"])
         if on_step:
-            on_step(frame, info)
+            on_step(observation, info)
         done = term or trunc
     p, status = info["params"], info["episode_status"]
     lap = p["sim_time"] if status == "lap_complete" else None
-    return Trial(env.track.name, reverse, start, p["progress"], status, info["steps"], lap, trajectory)
+    steps = info["steps"]
+    return Trial(
+        env.track.name, reverse, start, p["progress"], status, steps, lap, trajectory, len(pauses), sum(pauses)
+    )
 
 
 @dataclass
@@ -143,19 +165,26 @@ class _Driving:
     reverse: bool
     stacker: FrameStack
     obs: np.ndarray
+    """The stacked camera observation."""
+    lidar: np.ndarray | None
+    """The latest LiDAR vector (not stacked), None without a LiDAR sensor."""
     info: dict
     recorder: SimTraceRecorder | None
     trajectory: list[list[float]] = field(default_factory=list)
+    pauses: list[float] = field(default_factory=list)
     done: bool = False
 
     def step(self, action: np.ndarray) -> None:
         """Apply one action; record the step; note the end of the episode."""
-        frame, reward, term, trunc, self.info = self.env.step(action)
+        observation, reward, term, trunc, self.info = self.env.step(action)
+        frame, self.lidar = split_observation(observation)
         self.obs = self.stacker.push(frame)
         if self.recorder:
             self.recorder.step(action, self.info, reward, term or trunc)
         p = self.info["params"]
         self.trajectory.append([round(p["x"], 4), round(p["y"], 4), round(p["speed"], 3)])
+        if "pause_duration" in self.info:
+            self.pauses.append(self.info["pause_duration"])
         self.done = bool(term or trunc)
 
     def trial(self) -> Trial:
@@ -171,16 +200,22 @@ class _Driving:
             self.info["steps"],
             lap,
             self.trajectory,
+            len(self.pauses),
+            sum(self.pauses),
         )
 
 
-def _start(env: RacerEnv, stack: int, start: int, reverse: bool, seed: int, record: bool, episode: int) -> _Driving:
-    frame, info = env.reset(seed=seed, options={"start_index": start, "reverse": reverse})
+def _start(
+    env: RacerEnv, stack: int, start: int, reverse: bool, seed: int, record: bool, episode: int, resets: bool = False
+) -> _Driving:
+    """Reset ``env`` for one trial and hold its first observation."""
+    observation, info = env.reset(seed=seed, options={"start_index": start, "reverse": reverse, "evaluation": resets})
     recorder = SimTraceRecorder() if record else None
     if recorder:
         recorder.reset(info, episode)
     stacker = FrameStack(stack)
-    return _Driving(env, start, reverse, stacker, stacker.reset(frame), info, recorder)
+    frame, lidar = split_observation(observation)
+    return _Driving(env, start, reverse, stacker, stacker.reset(frame), lidar, info, recorder)
 
 
 def drive_lockstep(model: ActorCritic, trials: list[_Driving], deterministic: bool) -> None:
@@ -190,7 +225,11 @@ def drive_lockstep(model: ActorCritic, trials: list[_Driving], deterministic: bo
     and each trial's env, seed and actions are its own, so the trials come out as ``run_trial`` would drive them.
     """
     while active := [t for t in trials if not t.done]:
-        actions, _, _ = model.act_numpy(np.stack([t.obs for t in active]), deterministic=deterministic)
+        obs = np.stack([t.obs for t in active])
+        # The trials' envs share one sensor list: all have a LiDAR vector or none does (as in run_trial, the
+        # network refuses a LiDAR batch it does not take, or the lack of one it needs).
+        lidar = None if active[0].lidar is None else np.stack([t.lidar for t in active])
+        actions, _, _ = model.act_numpy(obs, deterministic=deterministic, lidar=lidar)
         for t, action in zip(active, actions, strict=True):
             t.step(action)
 
@@ -212,7 +251,8 @@ def evaluate(
                 start = round(i * count / settings.episodes) % count
                 seed = settings.seed + 1000 * i + (500 if reverse else 0)
                 episode = len(trials) + len(driving)
-                driving.append(_start(env, stack, start, reverse, seed, recorder is not None, episode))
+                record = recorder is not None
+                driving.append(_start(env, stack, start, reverse, seed, record, episode, settings.resets))
         try:
             drive_lockstep(model, driving, settings.deterministic)
         finally:

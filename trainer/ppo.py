@@ -150,19 +150,27 @@ class PPOBatch:
     """float32 (N,) value targets: advantages + old_values."""
     old_values: torch.Tensor
     """float32 (N,) V(o_t) under the behaviour policy."""
+    lidar: torch.Tensor | None = None
+    """float32 (N, L) LiDAR part of o_t, for a network with a LiDAR; None for a camera-only network."""
 
     def __post_init__(self) -> None:
         n = len(self)
         for f in fields(self):
-            if getattr(self, f.name).shape[0] != n:
-                raise ValueError(f"PPOBatch.{f.name} has {getattr(self, f.name).shape[0]} rows, obs has {n}")
+            value = getattr(self, f.name)
+            if value is not None and value.shape[0] != n:
+                raise ValueError(f"PPOBatch.{f.name} has {value.shape[0]} rows, obs has {n}")
 
     def __len__(self) -> int:
         return int(self.obs.shape[0])
 
     def select(self, idx: torch.Tensor) -> PPOBatch:
-        """The rows ``idx`` of every field."""
-        return PPOBatch(*(getattr(self, f.name)[idx] for f in fields(self)))
+        """The rows ``idx`` of every field (an absent LiDAR stays absent)."""
+        return PPOBatch(*(_rows(getattr(self, f.name), idx) for f in fields(self)))
+
+
+def _rows(value: torch.Tensor | None, idx: torch.Tensor) -> torch.Tensor | None:
+    """``value[idx]``, or None for an absent optional field."""
+    return None if value is None else value[idx]
 
 
 def update(
@@ -183,10 +191,10 @@ def update(
     """PPO epochs over ``batch``; returns the means over minibatches of the losses and statistics.
 
     Each epoch shuffles the rows with ``generator`` (so a seed makes the update reproducible) and takes
-    minibatches of ``minibatch_size`` (the last may be smaller). ``model.evaluate(obs, actions)`` must return
-    (log_prob, entropy, value). Keys: policy_loss, value_loss, entropy, approx_kl, clip_fraction, grad_norm
-    (before clipping), explained_variance (of the batch's old values), epochs_run and epoch_kl (the mean
-    approx KL of the last epoch run).
+    minibatches of ``minibatch_size`` (the last may be smaller). ``model.evaluate(obs, actions, lidar)`` must return
+    (log_prob, entropy, value); ``lidar`` is the minibatch's LiDAR rows, None for a camera-only network. Keys:
+    policy_loss, value_loss, entropy, approx_kl, clip_fraction, grad_norm (before clipping), explained_variance (of
+    the batch's old values), epochs_run and epoch_kl (the mean approx KL of the last epoch run).
 
     ``target_kl`` (None = off, as DeepRacer) stops the remaining epochs once an epoch's mean approx KL exceeds
     it. Each minibatch's KL is measured before its own step, so an epoch's mean covers every row of the batch
@@ -252,7 +260,7 @@ def minibatch_step(
     max_grad_norm: float,
 ) -> dict[str, float]:
     """One gradient step on one minibatch; returns its losses and statistics."""
-    new_logp, entropy, values = model.evaluate(mb.obs, mb.actions)
+    new_logp, entropy, values = model.evaluate(mb.obs, mb.actions, mb.lidar)
     advantages = normalize_advantages(mb.advantages)  # per minibatch, as in CleanRL
     pg_loss, clip_fraction, kl = policy_loss(new_logp, mb.old_logp, advantages, clip_eps)
     v_loss = value_loss(values, mb.returns, loss_type)

@@ -43,6 +43,7 @@ from common.policy import (
 from common.protocol import EpisodeSummary, PolicyVersion, ProtocolError, Segment, decode_segment
 from common.redis_util import redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
+from common.sensors import ObsSpec, camera_frame_size, observation_spec
 from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
 from model_store.runs import METRICS_FILE, checkpoint_key, evaluation_name, local_run_dir
@@ -248,12 +249,15 @@ class Trainer:
         """Network and optimizer for the run's action space (read from the run's stored files)."""
         env_cfg = localize_env(self.run, self.runs, Path(self._workdir.name))
         probe = RacerEnv(config=env_cfg)  # the action space and observation shape the workers will see
-        self.obs_shape = (*probe.observation_space.shape[:2], self.hp.stack_size)
+        sensors = probe.actions.sensor
+        self.obs_spec: ObsSpec = observation_spec(sensors, self.hp.stack_size)
+        """The sensors' observation: the camera channels segments carry, and their LiDAR (if any)."""
+        self.obs_shape = self.obs_spec.camera_shape(camera_frame_size(probe.observation_space))
         self.n_actions = probe.actions.n if probe.actions.discrete else None
         spec = action_space_spec(probe.actions)
         probe.close()
         torch.manual_seed(self.run.seed)
-        self.model: ActorCritic = build_policy(self.obs_shape, spec, self.run.policy)
+        self.model: ActorCritic = build_policy(self.obs_shape, spec, self.run.policy, sensors)
         self.precision = resolve_precision(self.opts.precision)
         self.model.set_trunk_precision(self.precision)
         self.optimizer = make_optimizer(self.model, self.hp.lr, self.run.policy.l2)
@@ -392,7 +396,7 @@ class Trainer:
 
     def _accept(self, fields: dict) -> int:
         try:
-            seg = decode_segment(fields, self.run.run_id, self.obs_shape, self.n_actions)
+            seg = decode_segment(fields, self.run.run_id, self.obs_shape, self.n_actions, lidar=self.obs_spec.lidar)
         except ProtocolError as exc:
             self.stats.drop(exc.reason)
             log.warning("dropped a segment: %s", exc)
@@ -710,8 +714,9 @@ def _summary_writer(store: str, run_id: str):
 
 
 def make_batch(segments: list[Segment], gamma: float, lam: float) -> PPOBatch:
-    """GAE per segment (bootstrapping from the values the workers sent), then one flat batch."""
-    parts = {k: [] for k in ("obs", "actions", "logp", "adv", "ret", "values")}
+    """GAE per segment (bootstrapping from the values the workers sent), then one flat batch (with the segments'
+    LiDAR vectors when they carry them: all or none do, ``decode_segment`` checks them against the run's sensors)."""
+    parts = {k: [] for k in ("obs", "actions", "logp", "adv", "ret", "values", "lidar")}
     for seg in segments:
         a = seg.arrays
         # Arrays decoded from Redis are read-only views of the message bytes: torch wants its own copy.
@@ -726,12 +731,14 @@ def make_batch(segments: list[Segment], gamma: float, lam: float) -> PPOBatch:
             lam,
         )
         parts["obs"].append(torch.from_numpy(a["obs"].copy()))
+        if "lidar" in a:
+            parts["lidar"].append(torch.from_numpy(a["lidar"].copy()))
         parts["actions"].append(torch.from_numpy(a["actions"].copy()))
         parts["logp"].append(torch.from_numpy(a["logp"].copy()))
         parts["values"].append(t["values"])
         parts["adv"].append(adv)
         parts["ret"].append(ret)
-    cat = {k: torch.cat(v) for k, v in parts.items()}
+    cat = {k: torch.cat(v) for k, v in parts.items() if v}
     return PPOBatch(
         obs=cat["obs"],
         actions=cat["actions"],
@@ -739,6 +746,7 @@ def make_batch(segments: list[Segment], gamma: float, lam: float) -> PPOBatch:
         advantages=cat["adv"],
         returns=cat["ret"],
         old_values=cat["values"],
+        lidar=cat.get("lidar"),
     )
 
 

@@ -40,18 +40,35 @@ def export(
 
 def car(
     model: Annotated[Path, typer.Option(help="model.onnx from racer export (model_metadata.json beside it).")],
-    source: Annotated[str, typer.Option(help="Camera index (0) or a video file / image sequence (frames/%04d.png).")],
+    source: Annotated[
+        str,
+        typer.Option(
+            help="Camera index (0) or a video file / image sequence (frames/%04d.png); the left camera of a "
+            "STEREO_CAMERAS model."
+        ),
+    ],
+    right_source: Annotated[
+        str | None,
+        typer.Option(
+            "--right-source",
+            help="The right camera of a STEREO_CAMERAS model (index, video file or image sequence), read in step "
+            "with --source; give it exactly when the model is stereo.",
+        ),
+    ] = None,
     vehicle: Annotated[Path | None, typer.Option(help="Vehicle calibration JSON (default: the defaults).")] = None,
     out: Annotated[str, typer.Option(help="CSV of motor commands, one row per frame (- = stdout).")] = "-",
     max_frames: Annotated[int | None, typer.Option(min=1, help="Stop after N frames.")] = None,
     json_out: Annotated[str | None, json_option("frames and rates")] = None,
 ) -> None:
-    """The on-car runtime: camera frames → policy (ONNX, one CPU thread) → vehicle calibration → motor commands."""
+    """The on-car runtime: camera frames → policy (ONNX, one CPU thread) → vehicle calibration → motor commands.
+
+    No LIDAR / SECTOR_LIDAR models: racer has no LiDAR driver (deploy.runtime.drive takes a LidarSource).
+    """
     from deploy.runtime import CsvSink, Policy, drive
     from deploy.vehicle import VehicleCalibration, load_vehicle_calibration
 
     calibration = load_vehicle_calibration(vehicle) if vehicle else VehicleCalibration()
-    result = drive(Policy(model), source, calibration, CsvSink(out), max_frames)
+    result = drive(Policy(model), source, calibration, CsvSink(out), max_frames, right_source=right_source)
     Console(stderr=True).print(
         f"{result.frames} frames at {result.fps:.1f} frames/s (inference {result.infer_ms_median:.2f} ms, "
         f"loop {result.loop_ms_median:.2f} ms, medians)"

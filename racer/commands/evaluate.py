@@ -27,6 +27,14 @@ def evaluate(
         str | None,
         typer.Option("--car", "--car-calibration", help="Drive this car (a preset or a car.json), not the run's."),
     ] = None,
+    resets: Annotated[
+        bool,
+        typer.Option(
+            "--resets/--no-resets",
+            help="DeepRacer's evaluation: put the car back after an off-track or crash with the run's penalties "
+            "(its race's number_of_resets); --no-resets ends a trial there, as racer's robust evaluation does.",
+        ),
+    ] = True,
 ) -> None:
     """Evaluate a checkpoint of a run from a store: a table per trial, and the JSON summary."""
     from racer.evaluate import run_eval
@@ -43,6 +51,7 @@ def evaluate(
         sim_trace,
         video,
         car_calibration,
+        resets,
     )
     if json_out != "-":
         console.print(_trials_table(record["trials"]))
@@ -57,11 +66,12 @@ def evaluate(
 
 
 def _trials_table(trials: list[dict]) -> Table:
-    table = Table("track", "direction", "start", "status", "progress %", "steps", "lap s")
+    table = Table("track", "direction", "start", "status", "progress %", "steps", "lap s", "resets")
     for t in trials:
         lap = "-" if t["lap_time_s"] is None else f"{t['lap_time_s']:.2f}"
         direction = "reverse" if t["reverse"] else "forward"
-        status = (t["status"], f"{t['progress']:.1f}", str(t["steps"]), lap)
+        resets = f"{t['resets']} (+{t['penalty_s']:g} s)" if t.get("resets") else "-"
+        status = (t["status"], f"{t['progress']:.1f}", str(t["steps"]), lap, resets)
         table.add_row(t["track"], direction, str(t["start_index"]), *status)
     return table
 
