@@ -237,6 +237,14 @@ class PenaltyConfig(_Strict):
     max_resets_after_crash: int = Field(3, ge=1)
     """MAX_RESETS_AFTER_CRASH: resets at one obstacle before a mercy reset."""
 
+    @field_validator("enable_mercy_reset")
+    @classmethod
+    def _no_mercy(cls, value: bool) -> bool:
+        # Accepting it and resetting behind the obstacle every time would be a silent difference from DeepRacer.
+        if value:
+            raise ValueError("enable_mercy_reset is not built in racer (the car is always reset behind the obstacle)")
+        return value
+
     @field_validator("number_of_resets")
     @classmethod
     def _resets(cls, value: int) -> int:
