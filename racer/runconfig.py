@@ -224,7 +224,7 @@ def trainer_role_run(
     elif not run_id:
         raise OptionError("give --run-id (or RACER_RUN_ID) or --config")
     else:
-        run, run_files = build_run(run_id, new.track, new.reward_fn, new.action_space, new.hyperparams)
+        run, run_files = build_run(run_id, new.track, new.reward_fn, new.action_space, new.hyperparams, race=new.race)
     if not resume and runs.newest_whole(run.run_id) is not None:
         logging.getLogger("racer.trainer").warning(
             "run %s already has checkpoints in %s: continuing it (as --resume)", run.run_id, runs.store.uri

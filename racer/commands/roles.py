@@ -22,6 +22,11 @@ def trainer(
     reward_fn: Annotated[Path | None, typer.Option("--reward-fn", envvar="RACER_REWARD_FN")] = None,
     action_space: Annotated[Path | None, typer.Option("--action-space", envvar="RACER_ACTION_SPACE")] = None,
     hyperparams: Annotated[Path | None, typer.Option("--hyperparams", envvar="RACER_HYPERPARAMS")] = None,
+    race_type: Annotated[
+        str | None,
+        typer.Option("--race-type", envvar="RACER_RACE_TYPE", help="TIME_TRIAL, OBJECT_AVOIDANCE, HEAD_TO_BOT."),
+    ] = None,
+    race: Annotated[Path | None, typer.Option("--race", envvar="RACER_RACE", help="JSON of race settings.")] = None,
     resume: Annotated[bool, typer.Option("--resume", envvar="RACER_RESUME")] = False,
     time_limit: Annotated[str | None, typer.Option("--time-limit", envvar="RACER_TIME_LIMIT")] = None,
     threads: Annotated[int, typer.Option(min=1, envvar="RACER_TRAINER_THREADS", help="PyTorch threads.")] = 1,
@@ -36,7 +41,7 @@ def trainer(
     from common.config import check_precision
     from model_store import RunStore, open_store
     from racer.lifecycle import setup_logging, stop_event_on_signals
-    from racer.runconfig import NewRun, parse_duration, trainer_role_run
+    from racer.runconfig import NewRun, load_race, parse_duration, trainer_role_run
     from trainer.process import TrainerOptions, run_trainer
 
     setup_logging(verbose)
@@ -49,6 +54,7 @@ def trainer(
         reward_fn=str(reward_fn) if reward_fn else None,
         action_space=str(action_space) if action_space else None,
         hyperparams=str(hyperparams) if hyperparams else None,
+        race=load_race(race, race_type),
     )
     run, run_files, resume = trainer_role_run(runs, run_id, config, files, resume, new)
     opts = TrainerOptions(
