@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from racer.commands.options import ActionSpace, Track, console, json_option, write_json
+from racer.commands.options import ActionSpace, RaceFile, RaceTypeOpt, Track, console, json_option, write_json
 
 app = typer.Typer(no_args_is_help=True, help="The bundled DeepRacer tracks.")
 
@@ -46,16 +46,21 @@ def drive(
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     reward_fn: Annotated[Path | None, typer.Option("--reward-fn", help="DeepRacer reward function file.")] = None,
     action_space: ActionSpace = None,
+    race_type: RaceTypeOpt = None,
+    race: RaceFile = None,
     json_out: Annotated[str | None, json_option("the episodes")] = None,
 ) -> None:
     """Drive a random policy for a few episodes and print what happened (a smoke test of the simulator)."""
     from common.config import EnvConfig
+    from common.race import RaceConfig
+    from racer.runconfig import load_race
     from sim.drive import drive_random
 
     cfg = EnvConfig(
         track=track,
         reward_fn=str(reward_fn) if reward_fn else None,
         action_space=str(action_space) if action_space else None,
+        race=load_race(race, race_type) or RaceConfig(),
     )
     rows = drive_random(cfg, episodes, seed)
     table = Table("episode", "steps", "status", "progress %", "return")
