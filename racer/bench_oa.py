@@ -25,11 +25,9 @@ The figures, per seed and their medians:
 
 from __future__ import annotations
 
-import io
 import json
 import statistics
 import tempfile
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,10 +36,8 @@ from rich.console import Console
 
 from common.race import HeadToBotConfig, ObjectAvoidanceConfig, RaceConfig, RaceType
 from common.sensors import STEREO_CAMERAS
-from model_store import LocalStore, RunStore
-from racer.bench_race import RACE_HYPERPARAMS
-from racer.embedded_redis import EmbeddedRedis
-from racer.launcher import TrainOptions, run_train
+from model_store import RunStore
+from racer.bench_race import RACE_HYPERPARAMS, train_from_scratch
 from racer.runconfig import build_run
 from sim.reward import example_path
 from sim.task import Status
@@ -146,28 +142,16 @@ def seed_figures(curve: list[dict], min_trials: int = MIN_TRIALS) -> dict[str, A
 def run_seed(settings: BenchOASettings, seed: int) -> dict[str, Any]:
     """One seed: ``racer train`` for the budget, then its figures."""
     race = oa_race(settings.race_type)
-    with EmbeddedRedis() as server, tempfile.TemporaryDirectory(prefix="racer-bench-oa-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="racer-bench-oa-") as tmp:
         space, hp = _files(Path(tmp))
         run_id = f"bench-oa-{race.race_type.value.lower().replace('_', '-')}-s{seed}"
         reward = str(example_path(OA_REWARD))
         run, files = build_run(run_id, settings.track, reward, str(space), str(hp), seed=seed, race=race)
-        opts = TrainOptions(
-            settings.workers,
-            server.url,
-            str(Path(tmp, "store")),
-            None,
-            settings.minutes * 60.0,
-            eval_every=1,
-            eval_episodes=settings.eval_trials,
-            eval_both_directions=False,
-        )
-        t0 = time.time()
-        run_train(run, opts, files, Console(file=io.StringIO()))
-        runs = RunStore(LocalStore(Path(tmp, "store")))
-        curve = oa_curve(run_id, runs, t0)
-        rows = runs.read_metrics(run_id, missing_ok=True)
+    curve, rollbacks = train_from_scratch(
+        run, files, settings.workers, settings.minutes, settings.eval_trials, oa_curve
+    )
     figures = seed_figures(curve, min(MIN_TRIALS, settings.eval_trials))
-    figures.update(seed=seed, rollbacks=int(rows[-1].get("rollbacks", 0)) if rows else 0, curve=curve)
+    figures.update(seed=seed, rollbacks=rollbacks, curve=curve)
     return figures
 
 

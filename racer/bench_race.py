@@ -21,6 +21,7 @@ import json
 import statistics
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,7 @@ from typing import Any
 from rich.console import Console
 
 from common.car_calibration import load_car
+from common.config import RunConfig
 from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
@@ -113,30 +115,48 @@ def seed_figures(curve: list[dict], limit_s: float) -> dict[str, Any]:
     }
 
 
-def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float) -> dict[str, Any]:
-    """One seed: ``racer train`` for the budget, then its figures."""
-    with EmbeddedRedis() as server, tempfile.TemporaryDirectory(prefix="racer-bench-race-") as tmp:
-        space, hp = _files(Path(tmp))
-        run_id = f"bench-race-s{seed}"
-        run, files = build_run(run_id, settings.track, str(example_path("racing_line")), str(space), str(hp), seed=seed)
-        run = run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(settings.car)})})
+def train_from_scratch(
+    run: RunConfig,
+    files: dict[str, bytes],
+    workers: int,
+    minutes: float,
+    eval_episodes: int,
+    read_curve: Callable[[str, RunStore, float], list[dict]],
+) -> tuple[list[dict], int]:
+    """``racer train`` (embedded Redis, the evaluator beside the trainer evaluating every checkpoint from
+    ``eval_episodes`` starts in the track's direction) for ``minutes`` in a throwaway store; then ``read_curve(run_id,
+    runs, t0)`` of the stored run and the collapse guard's rollbacks. ``racer bench race`` and ``bench oa`` share it."""
+    with EmbeddedRedis() as server, tempfile.TemporaryDirectory(prefix="racer-bench-") as tmp:
         opts = TrainOptions(
-            settings.workers,
+            workers,
             server.url,
             str(Path(tmp, "store")),
             None,
-            settings.minutes * 60.0,
+            minutes * 60.0,
             eval_every=1,
-            eval_episodes=settings.eval_starts,
+            eval_episodes=eval_episodes,
             eval_both_directions=False,
         )
         t0 = time.time()
         run_train(run, opts, files, Console(file=io.StringIO()))
         runs = RunStore(LocalStore(Path(tmp, "store")))
-        curve = race_curve(run_id, runs, t0)
-        rows = runs.read_metrics(run_id, missing_ok=True)
+        curve = read_curve(run.run_id, runs, t0)
+        rows = runs.read_metrics(run.run_id, missing_ok=True)
+    return curve, int(rows[-1].get("rollbacks", 0)) if rows else 0
+
+
+def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float) -> dict[str, Any]:
+    """One seed: ``racer train`` for the budget, then its figures."""
+    with tempfile.TemporaryDirectory(prefix="racer-bench-race-") as tmp:
+        space, hp = _files(Path(tmp))
+        reward = str(example_path("racing_line"))
+        run, files = build_run(f"bench-race-s{seed}", settings.track, reward, str(space), str(hp), seed=seed)
+    run = run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(settings.car)})})
+    curve, rollbacks = train_from_scratch(
+        run, files, settings.workers, settings.minutes, settings.eval_starts, race_curve
+    )
     figures = seed_figures(curve, limit_s)
-    figures.update(seed=seed, rollbacks=int(rows[-1].get("rollbacks", 0)) if rows else 0, curve=curve)
+    figures.update(seed=seed, rollbacks=rollbacks, curve=curve)
     return figures
 
 
