@@ -26,7 +26,6 @@ The figures, per seed and their medians:
 from __future__ import annotations
 
 import json
-import statistics
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,7 +36,7 @@ from rich.console import Console
 from common.race import HeadToBotConfig, ObjectAvoidanceConfig, RaceConfig, RaceType
 from common.sensors import STEREO_CAMERAS
 from model_store import RunStore
-from racer.bench_race import RACE_HYPERPARAMS, train_from_scratch
+from racer.bench_race import RACE_HYPERPARAMS, median_known, train_from_scratch
 from racer.runconfig import build_run
 from sim.reward import example_path
 from sim.task import Status
@@ -155,11 +154,6 @@ def run_seed(settings: BenchOASettings, seed: int) -> dict[str, Any]:
     return figures
 
 
-def _median(values: list[float | None]) -> float | None:
-    known = [v for v in values if v is not None]
-    return statistics.median(known) if known else None
-
-
 def summarize(settings: BenchOASettings, seeds: list[dict[str, Any]]) -> dict[str, Any]:
     """The benchmark's result: its settings, the medians over the seeds and each seed's figures."""
     race = oa_race(settings.race_type)
@@ -175,7 +169,7 @@ def summarize(settings: BenchOASettings, seeds: list[dict[str, Any]]) -> dict[st
         "reward": OA_REWARD,
         "action_space": OA_ACTIONS,
         "hyperparams": OA_HYPERPARAMS,
-        **{key: _median([s[key] for s in seeds]) for key in keys},
+        **{key: median_known([s[key] for s in seeds]) for key in keys},
         "robust_seeds": sum(s["time_to_robust_s"] is not None for s in seeds),
         "seeds": seeds,
     }

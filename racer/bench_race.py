@@ -160,7 +160,8 @@ def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float) -> dict[str
     return figures
 
 
-def _median(values: list[float | None]) -> float | None:
+def median_known(values: list[float | None]) -> float | None:
+    """The median of the values that are known (None: a seed that never reached the figure); None if none is."""
     known = [v for v in values if v is not None]
     return statistics.median(known) if known else None
 
@@ -187,7 +188,7 @@ def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> 
                 highlight=False,
             )
     keys = ("time_to_robust_s", "best_robust_lap_s", "ratio_to_limit", "final_completion")
-    medians = {key: _median([s[key] for s in seeds]) for key in keys}
+    medians = {key: median_known([s[key] for s in seeds]) for key in keys}
     return {
         "track": settings.track,
         "car": settings.car,

@@ -79,8 +79,7 @@ class RacerEnv(gym.Env):
         self.race = RaceObjects(self.track, cfg.race)
         self.objects: list[WorldObject] = []
         self._box_colors: np.ndarray | None = None
-        self._crashes = 0
-        self._resets_left, self._pause_s, self._reverse = 0, 0.0, False
+        self._resets_left, self._pause_s = 0, 0.0
         self._build_world()
         self.task = RacingTask(self.track, road=RoadMask(self.track, self.frame))
         self.observation_space = self._observation_space()
@@ -145,12 +144,10 @@ class RacerEnv(gym.Env):
         index = self._start_index(reverse, options.get("start_index"))
         self._randomize(rng)
         self.objects = self.race.reset(rng, reverse)
-        self._crashes = 0
         # DeepRacer's evaluation puts the car back after an off-track or a crash, with a penalty, up to
         # NUMBER_OF_RESETS times; training ends the episode (markov/rollout_worker.py passes 0 resets).
         self._resets_left = self.config.race.penalties.number_of_resets if options.get("evaluation") else 0
         self._pause_s = 0.0
-        self._reverse = reverse
         pose = self.task.start_pose(index, reverse)
         if self.objects and options.get("start_index") is None:
             # A training start within 1 m of an object moves to the other lane (simapp RolloutCtrl.
@@ -181,7 +178,6 @@ class RacerEnv(gym.Env):
         crashed = bool(self.objects) and self.race.crashed(
             ph.pose, self._last.params["progress"], self.task.start_fraction
         )
-        self._crashes += int(crashed)
         sim_time = ph.time + self._pause_s
         result = self.task.observe(
             ph.pose, ph.wheel_positions(), ph.upright, sim_time, requested, objects=self.objects, crashed=crashed
@@ -268,7 +264,7 @@ class RacerEnv(gym.Env):
         at = result if result.status == Status.CRASHED else self._last
         pose = reset_pose(
             self.track,
-            self._reverse,
+            self.task.state.reversed,
             float(at.params["projection_distance"]),
             Pose(*(at.params[k] for k in ("x", "y")), 0.0),
             self.objects,
@@ -314,7 +310,7 @@ class RacerEnv(gym.Env):
         return augment_frame(frame, aug, self.np_random)[..., None]
 
     def _info(self, result: StepResult, reward: float, status: str | None = None) -> dict:
-        extra = {OBSTACLE_COLUMN: self._crashes + self.race.bot_crashes} if self.race.slots else {}
+        extra = {OBSTACLE_COLUMN: self.race.crash_count} if self.race.slots else {}
         return extra | {
             "params": result.params,
             "reward_terms": {"reward_function": reward},

@@ -945,11 +945,13 @@ class RaceObjects:
         self._bots = BotCars(track, race.head_to_bot) if race.bot_car_count else None
         self.objects: list[WorldObject] = []
         self._reverse = False
+        self._car_crashes = 0
 
     @property
-    def bot_crashes(self) -> int:
-        """Bot cars that ran into the car this episode (the bots paused; the car is not at fault)."""
-        return self._bots.crash_count if self._bots else 0
+    def crash_count(self) -> int:
+        """Crashes into objects this episode: the car's own, and bots that ran into it (which paused them), as the
+        simapp's sim-trace ``obstacle_crash_counter`` counts them."""
+        return self._car_crashes + (self._bots.crash_count if self._bots else 0)
 
     @property
     def slots(self) -> int:
@@ -959,6 +961,7 @@ class RaceObjects:
     def reset(self, rng: np.random.Generator, reverse: bool) -> list[WorldObject]:
         """New objects for an episode in this direction (the simapp's order: obstacles, then bot cars)."""
         self._reverse = reverse
+        self._car_crashes = 0
         obstacles = []
         if self.race.obstacle_count:
             obstacles = place_obstacles(self.track, self.race.object_avoidance, rng, reverse)
@@ -980,9 +983,11 @@ class RaceObjects:
         if index is None:
             return False
         obj = self.objects[index]
-        if obj.kind != BOT_CAR:
-            return True
-        if car_at_fault(car_progress, car_start_fraction, object_progress(self.track, self._reverse, obj)):
+        at_fault = obj.kind != BOT_CAR or car_at_fault(
+            car_progress, car_start_fraction, object_progress(self.track, self._reverse, obj)
+        )
+        if at_fault:
+            self._car_crashes += 1
             return True
         if self._bots:
             self._bots.penalize()
