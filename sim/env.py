@@ -30,7 +30,7 @@ from common.sensors import CAMERA_KEY, LIDAR_KEY, ObsSpec, lidar_from_ranges, ob
 from common.simtrace import OBSTACLE_COLUMN
 from sim.augment import augment_frame, needs_color
 from sim.camera import CameraSpec, GroundCamera, MujocoCamera, StereoGroundCamera
-from sim.lidar import Lidar
+from sim.lidar import Lidar, scan_due
 from sim.objects import RaceObjects, WorldObject, as_boxes, reset_pose, start_pose
 from sim.physics import CarPhysics, Pose
 from sim.reward import RewardFunction, RewardFunctionError, example_path, load_reward_function
@@ -113,6 +113,8 @@ class RacerEnv(gym.Env):
         else:
             self.camera = GroundCamera(self.frame, self.texture, self.camera_spec, self.palette.sky)
         self.lidar = Lidar(self.model, self.physics.data) if self.obs_spec.lidar else None
+        self._lidar_obs: np.ndarray | None = None
+        """The last scan's observation: DeepRacer's 10 Hz LiDAR is repeated on steps with no new scan."""
         # The MuJoCo scene holds the objects only where something looks at it: the LiDAR's rays, MuJoCo's camera.
         self._slot_geoms = object_slot_geoms(self.model) if slots and (self.lidar or mujoco_cam) else None
 
@@ -288,8 +290,10 @@ class RacerEnv(gym.Env):
         frame = self._camera_frame(pose)
         if self.lidar is None:
             return frame
-        ranges = self.lidar.scan(pose, self.np_random)
-        return {CAMERA_KEY: frame, LIDAR_KEY: lidar_from_ranges(self.obs_spec.lidar.name, ranges)}
+        if self._lidar_obs is None or scan_due(self.task.steps, CONTROL_HZ):
+            ranges = self.lidar.scan(pose, self.np_random)
+            self._lidar_obs = lidar_from_ranges(self.obs_spec.lidar.name, ranges)
+        return {CAMERA_KEY: frame, LIDAR_KEY: self._lidar_obs.copy()}
 
     def _camera_frame(self, pose) -> np.ndarray:
         """(H, W, 1) or, stereo, (H, W, 2) uint8: the render with this step's objects, the episode's lighting and

@@ -41,8 +41,9 @@ The env calls, each step after the physics (and after :func:`sim.world.set_objec
     obs = sector_lidar.observe(physics.pose, np_random)  # SECTOR_LIDAR: (8,) float32 of 0.0 / 1.0
 
 DeepRacer's lidar publishes at 10 Hz and its agent takes the latest scan without waiting
-(``markov/sensors/composite_sensor.py``), so one step in three repeats a scan; :data:`LIDAR_HZ` is there for an env
-that wants to reproduce that.
+(``markov/sensors/sensors_rollout.py: Lidar.get_state``: a non-blocking get from a buffer that is not cleared on
+get, blocking only when it is empty, as after ``reset``), so at 15 Hz one step in three repeats the previous scan:
+the env scans only when :func:`scan_due` says a new one has arrived, and repeats the last one otherwise.
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ import numpy as np
 
 from common.sensors import LIDAR, LIDAR_MAX_RANGE_M, LIDAR_MIN_RANGE_M, LIDAR_SAMPLES, SECTOR_LIDAR, lidar_from_ranges
 from sim.physics import Pose
-from sim.world import OBJECT_GEOM_GROUP
+from sim.world import CONTROL_HZ, OBJECT_GEOM_GROUP
 
 LIDAR_MIN_ANGLE = -2.61799
 """Radians, in the laser frame (``LIDAR_360_DEGREE_MIN_ANGLE``)."""
@@ -67,6 +68,16 @@ LIDAR_NOISE_STDDEV = 0.01
 """Metres, Gaussian, mean 0 (``LIDAR_360_DEGREE_NOISE_STDDEV``, ``_MEAN``)."""
 LIDAR_HZ = 10.0
 """Scan rate (``update_rate`` in urdf/deepracer/racecar.gazebo); the camera's is 15 Hz."""
+
+
+def scan_due(step: int, control_hz: float = CONTROL_HZ) -> bool:
+    """Whether a new scan has arrived by control step ``step`` of an episode (0: the reset, whose first get waits
+    for one). Scans come every 1 / LIDAR_HZ s from the reset; steps come every 1 / control_hz s, so at 15 Hz steps
+    1, 4, 7… see no new scan and repeat the last."""
+    if step <= 0:
+        return True
+    return (step * LIDAR_HZ) // control_hz > ((step - 1) * LIDAR_HZ) // control_hz
+
 
 _CHASSIS_ABOVE_BASE_M = 0.023249  # base_link_joint, urdf/deepracer/deepracer_*_lidar.urdf
 _LASER_ON_CHASSIS = (0.02913, 0.0, 0.16145)  # hokuyo_joint xyz, ditto; rpy (0, 0, 3.1416)

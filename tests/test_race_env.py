@@ -251,3 +251,29 @@ def test_deepracers_evaluation_resets_count_in_the_trial_and_its_summary(tmp_pat
     cfg = env.config.model_copy(update={"action_space": str(space)})
     lockstep = evaluate(model, cfg, 1, EvalSettings(episodes=2, both_directions=False, resets=True))
     assert [t.resets for t in lockstep] == [2, 2]
+
+
+def test_the_10_hz_lidar_repeats_its_last_scan_on_one_step_in_three(tmp_path: Path) -> None:
+    """DeepRacer's agent takes the latest 10 Hz scan without waiting (sensors_rollout.py: Lidar.get_state), so at
+    15 Hz steps 1, 4, 7… see the scan before them again; the others see a new one (its noise differs)."""
+    from sim.lidar import scan_due
+
+    assert [scan_due(i) for i in range(8)] == [True, False, True, True, False, True, True, False]
+    env = RacerEnv(track="reinvent_base", action_space=metadata(tmp_path, ["STEREO_CAMERAS", "LIDAR"]), race=ONE_BOX)
+    env.reset(seed=0, options={"start_index": 0})
+    box = env.objects[0]
+    side = box.yaw + math.pi / 2
+    beside = Pose(
+        box.x + 0.6 * math.cos(side) - 0.6 * math.cos(box.yaw),
+        box.y + 0.6 * math.sin(side) - 0.6 * math.sin(box.yaw),
+        box.yaw + 0.3,
+    )
+    env.physics.reset(beside)
+    env._place_objects()
+    scans = [env._observe()[LIDAR_KEY]]
+    for _ in range(7):
+        obs, *_ = env.step(0)
+        scans.append(obs[LIDAR_KEY])
+    assert scans[0].min() < 0.9  # the box is in range, so fresh scans carry fresh noise
+    for i in range(1, 8):
+        assert np.array_equal(scans[i], scans[i - 1]) == (not scan_due(i)), i
