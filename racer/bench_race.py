@@ -12,12 +12,16 @@ round the lap, in the track's direction as a DeepRacer race is driven, with 10 %
 * ``collapses``: checkpoints after the first robust one whose completion fell below 50 %, and
   ``collapses_recovered`` those followed later by a robust checkpoint; ``rollbacks``: the collapse guard's;
 * ``final_completion``: the completion of the last evaluated checkpoint (0-1).
+
+The reward example's constants are set to the car, as its header asks a user to do (``reward_constants``: from the
+limits ``racer limit`` measured), and the JSON records them under ``reward_constants``.
 """
 
 from __future__ import annotations
 
 import io
 import json
+import re
 import statistics
 import tempfile
 import time
@@ -44,6 +48,9 @@ RACE_HYPERPARAMS = {"collapse_guard": True, "collapse_min_best": 0.9, "target_kl
 """DeepRacer's defaults plus racer's stability knobs. The guard acts only once a checkpoint has been (nearly)
 robust: in a first 15-minute run it acted from a best of 0.6 of 10 trials, where completion is still noise, and
 rolled one seed back 7 times, halving the learning rate each time until learning stopped."""
+REWARD_SHARE_OF_LIMIT = 0.8
+"""The reward example's LATERAL_ACCEL and BRAKE are this share of the car's measured figures: a line's target
+speeds a little inside what the car holds, as the example's default (5 m/s² for a car measured at ~6.7) is."""
 COLLAPSED_BELOW = 0.5
 """A checkpoint after the first robust one whose completion falls below this is a collapse."""
 
@@ -59,6 +66,33 @@ class BenchRaceSettings:
     workers: int = 2
     eval_starts: int = 10
     """Evaluation start points (the track's direction only)."""
+
+
+def reward_constants(car_limits: dict[str, Any]) -> dict[str, float]:
+    """The racing example's MAX_SPEED, LATERAL_ACCEL and BRAKE for a car (``racer limit``'s ``car_limits``): the
+    action space's top speed, and :data:`REWARD_SHARE_OF_LIMIT` of the median lateral acceleration the car holds
+    from 2 m/s up and of its median braking from 1 m/s up. Without this the Gazebo car (3.2 m/s² of lateral grip)
+    was asked for the default car's bend speeds, and one seed never lapped robustly in 30 minutes."""
+    speeds = car_limits["speeds"]
+    lateral = [a for v, a in zip(speeds, car_limits["max_lateral_accel"], strict=True) if v >= 2.0]
+    brake = [b for v, b in zip(speeds, car_limits["brake"], strict=True) if v >= 1.0]
+    return {
+        "MAX_SPEED": max(a["speed"] for a in RACE_ACTIONS),
+        "LATERAL_ACCEL": round(REWARD_SHARE_OF_LIMIT * statistics.median(lateral), 2),
+        "BRAKE": round(REWARD_SHARE_OF_LIMIT * statistics.median(brake), 2),
+    }
+
+
+def reward_file(folder: Path, constants: dict[str, float]) -> Path:
+    """A copy of the racing example with its constants set (what a user does by hand), in ``folder``."""
+    text = example_path("racing_line").read_text()
+    for name, value in constants.items():
+        text, found = re.subn(rf"^{name} = [0-9.]+", f"{name} = {value}", text, count=1, flags=re.M)
+        if not found:
+            raise ValueError(f"{example_path('racing_line')}: no constant {name} to set")
+    path = folder / "reward_function.py"
+    path.write_text(text)
+    return path
 
 
 def _files(folder: Path) -> tuple[Path, Path]:
@@ -145,11 +179,11 @@ def train_from_scratch(
     return curve, int(rows[-1].get("rollbacks", 0)) if rows else 0
 
 
-def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float) -> dict[str, Any]:
+def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float, constants: dict[str, float]) -> dict[str, Any]:
     """One seed: ``racer train`` for the budget, then its figures."""
     with tempfile.TemporaryDirectory(prefix="racer-bench-race-") as tmp:
         space, hp = _files(Path(tmp))
-        reward = str(example_path("racing_line"))
+        reward = str(reward_file(Path(tmp), constants))
         run, files = build_run(f"bench-race-s{seed}", settings.track, reward, str(space), str(hp), seed=seed)
     run = run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(settings.car)})})
     curve, rollbacks = train_from_scratch(
@@ -174,11 +208,13 @@ def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> 
         space, _ = _files(Path(tmp))
         limit = compute_limit(settings.track, settings.car, space)
     limit_s = float(limit["best_known_lap_s"])
+    constants = reward_constants(limit["car_limits"])
     if progress:
         progress.print(f"limit on {settings.track} for car {settings.car}: {limit_s:.2f} s", highlight=False)
+        progress.print(f"reward example's constants for this car: {constants}", highlight=False)
     seeds = []
     for seed in settings.seeds:
-        figures = run_seed(settings, seed, limit_s)
+        figures = run_seed(settings, seed, limit_s, constants)
         seeds.append(figures)
         if progress:
             progress.print(
@@ -197,6 +233,7 @@ def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> 
         "eval_starts": settings.eval_starts,
         "action_space": RACE_ACTIONS,
         "hyperparams": RACE_HYPERPARAMS,
+        "reward_constants": constants,
         "limit_s": limit_s,
         "computed_limit_s": limit["lap_time_s"],
         "driven_limit_s": limit["driven_lap_time_s"],

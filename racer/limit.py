@@ -67,6 +67,8 @@ def _report(
         "driven_status": driven.status,
         "driven_progress": driven.progress,
         "driven_pace": driven.pace,
+        "driven_slowed_m": driven.slowed_m,
+        "driven_tries": driven.tries,
         # The quasi-steady profile misses what a car does between steady states (a car that turns tighter while
         # braking than on a steady circle); where the driven lap beats it, that lap is the better figure.
         "best_known_lap_s": line.lap_time if driven.lap_time is None else min(line.lap_time, driven.lap_time),

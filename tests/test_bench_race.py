@@ -46,3 +46,25 @@ def test_figures_of_a_run_that_never_laps() -> None:
 def test_a_dip_that_stays_above_half_is_not_a_collapse() -> None:
     figures = seed_figures([point(1, 1.0, 8.0), point(2, 0.6), point(3, 1.0, 7.0)], limit_s=6.0)
     assert figures["collapses"] == 0 and figures["best_robust_lap_s"] == 7.0
+
+
+def test_the_reward_examples_constants_are_set_to_the_car(tmp_path) -> None:  # noqa: ANN001
+    """80 % of the median lateral acceleration from 2 m/s and of the median braking from 1 m/s, written into a copy
+    of the example that still runs as a reward function."""
+    import importlib.util
+
+    from racer.bench_race import reward_constants, reward_file
+
+    limits = {
+        "speeds": [0.5, 1.0, 2.0, 3.0, 4.0],
+        "max_lateral_accel": [9.0, 9.0, 3.0, 4.0, 5.0],  # median from 2 m/s: 4.0
+        "brake": [1.0, 4.0, 5.0, 6.0, 7.0],  # median from 1 m/s: 5.5
+    }
+    constants = reward_constants(limits)
+    assert constants == {"MAX_SPEED": 4.0, "LATERAL_ACCEL": 3.2, "BRAKE": 4.4}
+    path = reward_file(tmp_path, constants)
+    spec = importlib.util.spec_from_file_location("set_example", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert (module.MAX_SPEED, module.LATERAL_ACCEL, module.BRAKE) == (4.0, 3.2, 4.4)
+    assert callable(module.reward_function)

@@ -142,8 +142,11 @@ def test_racer_limit_drives_its_limit_within_5_percent(tmp_path: Path) -> None:
     for key in ("lap_time_s", "driven_lap_time_s", "line_length_m", "car_limits", "flying_lap_time_s", "driven_pace"):
         assert key in report
     assert report["driven_status"] == "lap_complete" and report["driven_pace"] == 1.0
-    assert 1.0 <= report["driven_lap_time_s"] / report["lap_time_s"] <= 1.05
-    assert report["best_known_lap_s"] == report["lap_time_s"]  # the drive did not beat it
+    assert report["driven_tries"] == 1 and report["driven_slowed_m"] == 0.0
+    # Within 5 % either way: the quasi-steady profile misses what the car does between steady states, and the
+    # controller's lap, which cuts the line a little where the corridor allows, may come in just under it.
+    assert 0.95 <= report["driven_lap_time_s"] / report["lap_time_s"] <= 1.05
+    assert report["best_known_lap_s"] == min(report["lap_time_s"], report["driven_lap_time_s"])
     assert 15.0 < report["line_length_m"] < 17.71  # shorter than the centre line
     assert {"speeds", "accel", "brake", "max_curvature", "top_speed"} <= set(report["car_limits"])
     assert report["seconds"]["total"] < 30.0
@@ -202,12 +205,32 @@ def test_the_steering_time_constant_is_measured_from_the_car() -> None:
 
 def test_the_follower_drives_the_gazebo_cars_lagging_steering_round_its_limit() -> None:
     """Pure pursuit left the track with this car at any look-ahead; the predictive follower must finish the lap
-    close to the limit (at full pace or a few per cent below it)."""
-    from sim.follower import PACES, drive_line
+    within 5 % of the limit, at full pace or with one bend slowed once."""
+    from sim.follower import drive_line
 
     car = load_car("deepracer-gazebo")
     lim = measure_limits(car)
     line = racing_line(load_track("reInvent2019_track"), lim)
     lap = drive_line("reInvent2019_track", line, lim, car)
-    assert lap.status == "lap_complete" and lap.pace in PACES[:2]
+    assert lap.status == "lap_complete" and lap.tries <= 2 and lap.pace >= 0.96
     assert 0.95 < lap.lap_time / line.lap_time < 1.05
+
+
+def test_the_follower_slows_only_the_stretch_before_where_a_try_left_and_accelerates_at_full_command(
+    limits: CarLimits,
+) -> None:
+    """A try that leaves the track slows the 4 m before that place (and 0.5 m after), not the lap; and where the
+    profile ahead is faster than the car, the command is the car's top command, since the profile's acceleration
+    was measured at full command (commanding the profile's speed, the Gazebo car lost 0.36 s in the first 2 m)."""
+    from sim.follower import SLOW_AFTER_M, SLOW_BEFORE_M, LineFollower, _stretch_before
+
+    line = racing_line(load_track("reinvent_base"), limits)
+    where = line.points[100]
+    mask = _stretch_before(line, where)
+    assert mask[100] and mask[99] and not mask[int(100 - (SLOW_BEFORE_M + 1.0) / line.ds.mean())]
+    assert float(line.ds[mask].sum()) == pytest.approx(SLOW_BEFORE_M + SLOW_AFTER_M, abs=0.25)
+    follower = LineFollower(line, limits)
+    standing = line.speed
+    assert follower._speed_command(0, 0.0, standing) == limits.max_command_speed  # the start: full command
+    cruise = int(np.argmax(standing[:-1]))  # at the profile's top speed the command follows the profile
+    assert follower._speed_command(cruise, float(standing[cruise]), standing) < limits.max_command_speed
