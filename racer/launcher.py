@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import contextlib
+import signal
 import subprocess
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -94,6 +96,26 @@ def _status_line(status: dict | None, procs_alive: int, workers: int, evaluation
     return line
 
 
+@contextlib.contextmanager
+def sigterm_as_ctrl_c():  # noqa: ANN201 - a context manager
+    """Within, SIGTERM (``kill``, ``docker stop``, systemd) stops ``racer train`` as Ctrl-C does: the roles run in
+    their own sessions, so without this a SIGTERM ended the launcher alone and left the trainer, the workers and
+    the evaluator running (seen: ``kill`` of a ``racer bench race`` left all four). Only the main thread can set a
+    handler; elsewhere this does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], console: Console | None = None) -> dict:
     """Start Redis (unless given), the trainer and the workers; show progress; stop them all at the end.
 
@@ -104,6 +126,7 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
     if opts.redis_url:
         connect_checked(opts.redis_url).close()  # a wrong URL or password fails here, before any process starts
     with contextlib.ExitStack() as stack:
+        stack.enter_context(sigterm_as_ctrl_c())
         redis_url = opts.redis_url or stack.enter_context(EmbeddedRedis()).url
         work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="racer-train-")))
         config_path = work / "run.json"
@@ -245,7 +268,7 @@ def _watch(
                     break
                 time.sleep(0.25)
         except KeyboardInterrupt:
-            console.print("stopping (Ctrl-C)…")
+            console.print("stopping (Ctrl-C or SIGTERM)…")
     if line:
         console.print(line, highlight=False, soft_wrap=True)
     return {**(status or {}), "trained_s": time.monotonic() - started}

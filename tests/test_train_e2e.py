@@ -118,6 +118,23 @@ def test_bad_reward_function_fails_before_starting_anything(tmp_path):
     assert not (tmp_path / "runs" / "bad").exists()
 
 
+def test_sigterm_stops_everything_as_ctrl_c_does(tmp_path):
+    """``kill`` / ``docker stop`` send SIGTERM; the roles run in their own sessions, so the launcher must stop them."""
+    cmd = [sys.executable, "-m", "racer", "train", "--workers", "1", "--track", "Straight_track", "--run-id", "st"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    runs = RunStore(open_store(str(tmp_path)))
+    deadline = time.monotonic() + 180
+    while time.monotonic() < deadline and not runs.list_checkpoints("st"):
+        time.sleep(1)
+    assert runs.list_checkpoints("st"), "no checkpoint within 180 s"
+    proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 0, out
+    assert "stopping (Ctrl-C or SIGTERM)" in out
+    ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True).stdout
+    assert "--run-id st" not in ps, "a role process outlived racer train"
+
+
 def test_ctrl_c_stops_everything_and_resume_continues_the_run(tmp_path):
     (tmp_path / "hp.json").write_text(json.dumps({**HP, "num_episodes_between_training": 4, "num_epochs": 1}))
     cmd = [
