@@ -151,7 +151,16 @@ def test_ctrl_c_stops_everything_and_resume_continues_the_run(tmp_path):
         "--hyperparams",
         "hp.json",
     ]
-    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    # A shell's background job (`bash .ci/run &`) inherits SIGINT ignored, and Python then never raises
+    # KeyboardInterrupt: give the launcher the disposition a terminal's foreground job has.
+    proc = subprocess.Popen(
+        cmd,
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     runs = RunStore(open_store(str(tmp_path)))
     deadline = time.monotonic() + 180
     while time.monotonic() < deadline and len(runs.list_checkpoints("cc")) < 2:
