@@ -22,10 +22,11 @@ Every control period:
    (sliding, load transfer); the simulator does not.
 3. The best checked plan's first command is sent.
 
-Measured on the eleven bundled loops (docs/racing.md, ``racer limit``): the default car is driven within 5 % of its
-limit on every one (pure pursuit managed 9 of 11 within 5 %). The Gazebo car, driven at its limit, may leave the track
-in one bend and not on a second try a little slower there: ``drive_line`` slows the stretch before the place where a
-try left the track and tries again (:data:`PACE_STEP`), so the rest of the lap keeps the profile's speeds.
+Measured on the bundled loops (docs/racing.md, ``racer limit``): the default car is driven within 3.3 % of its
+limit on each of the ten measured (pure pursuit once managed 9 of 11 within 5 % of an older, slower limit). The
+Gazebo car, driven at its limit, may leave the track in one bend and not on a second try a little slower there:
+``drive_line`` slows the stretch before the place where a try left the track and tries again (:data:`PACE_STEP`), so
+the rest of the lap keeps the profile's speeds.
 """
 
 from __future__ import annotations
