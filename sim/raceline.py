@@ -235,6 +235,8 @@ def _curve_speed_table(limits: CarLimits) -> tuple[np.ndarray, np.ndarray, np.nd
     # Reversed, curvature ascends and speed descends: the first of each run of equal curvatures has the top speed.
     keep = np.concatenate([[True], np.diff(kappa) > 1e-9])
     kappa, speed = kappa[keep], speed[keep]
+    if len(kappa) == 1:  # the same curvature at every speed: flat up to it, then the steep fall beyond the last knot
+        return np.array([kappa[0], kappa[0] + 1e-6]), np.array([speed[0], speed[0]]), np.zeros(2)
     slope = PchipInterpolator(kappa, speed).derivative()(kappa)
     slope[0] = 0.0
     return kappa, speed, slope

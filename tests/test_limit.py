@@ -100,6 +100,19 @@ def test_the_optimisers_smooth_lap_time_matches_the_exact_profile() -> None:
     assert soft == pytest.approx(exact, rel=0.01)
 
 
+def test_a_car_that_holds_one_curvature_at_every_speed_still_gets_a_line() -> None:
+    """Ties in the table are merged for the optimiser's speed(curvature); a table that is all one tie must still
+    give a usable function: the top speed up to that curvature, falling beyond it."""
+    import torch
+
+    from sim.raceline import _curve_speed_table, _interp_speed
+
+    kt, vt, dt = (torch.tensor(a) for a in _curve_speed_table(flat_limits(kmax=2.0)))
+    v = _interp_speed(torch.tensor([0.5, 2.0, 4.0], dtype=torch.float64), kt, vt, dt)
+    assert v[0] == pytest.approx(3.0) and v[1] == pytest.approx(3.0, rel=1e-4)
+    assert v[2] == pytest.approx(3.0 * (2.0 / 4.0) ** 2, rel=1e-4)
+
+
 def test_the_gazebo_cars_line_uses_the_track() -> None:
     """The Gazebo car's curvature table is flat over several speeds; a piecewise-linear speed(curvature) then had
     vertical steps on which the line search stopped after 30 iterations, 7 cm from the centre line, and the
