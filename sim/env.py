@@ -290,7 +290,7 @@ class RacerEnv(gym.Env):
         frame = self._camera_frame(pose)
         if self.lidar is None:
             return frame
-        if self._lidar_obs is None or scan_due(self.task.steps, CONTROL_HZ):
+        if self._lidar_obs is None or scan_due(self.task.steps):
             ranges = self.lidar.scan(pose, self.np_random)
             self._lidar_obs = lidar_from_ranges(self.obs_spec.lidar.name, ranges)
         return {CAMERA_KEY: frame, LIDAR_KEY: self._lidar_obs.copy()}

@@ -118,43 +118,14 @@ def test_bad_reward_function_fails_before_starting_anything(tmp_path):
     assert not (tmp_path / "runs" / "bad").exists()
 
 
-def test_sigterm_stops_everything_as_ctrl_c_does(tmp_path):
-    """``kill`` / ``docker stop`` send SIGTERM; the roles run in their own sessions, so the launcher must stop them."""
-    cmd = [sys.executable, "-m", "racer", "train", "--workers", "1", "--track", "Straight_track", "--run-id", "st"]
-    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    runs = RunStore(open_store(str(tmp_path)))
-    deadline = time.monotonic() + 180
-    while time.monotonic() < deadline and not runs.list_checkpoints("st"):
-        time.sleep(1)
-    assert runs.list_checkpoints("st"), "no checkpoint within 180 s"
-    proc.send_signal(signal.SIGTERM)
-    out, _ = proc.communicate(timeout=60)
-    assert proc.returncode == 0, out
-    assert "stopping (Ctrl-C or SIGTERM)" in out
-    ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True).stdout
-    assert "--run-id st" not in ps, "a role process outlived racer train"
-
-
-def test_ctrl_c_stops_everything_and_resume_continues_the_run(tmp_path):
-    (tmp_path / "hp.json").write_text(json.dumps({**HP, "num_episodes_between_training": 4, "num_epochs": 1}))
-    cmd = [
-        sys.executable,
-        "-m",
-        "racer",
-        "train",
-        "--workers",
-        "1",
-        "--track",
-        "Straight_track",
-        "--run-id",
-        "cc",
-        "--hyperparams",
-        "hp.json",
-    ]
+def _interrupt_train(tmp_path, run_id: str, extra: list[str], checkpoints: int, sig: signal.Signals) -> str:
+    """Start ``racer train`` on Straight_track, wait (up to 180 s) for ``checkpoints`` checkpoints, send ``sig``;
+    it must exit 0 and leave no role process behind. Returns what it printed."""
+    cmd = [sys.executable, "-m", "racer", "train", "--workers", "1", "--track", "Straight_track", "--run-id", run_id]
     # A shell's background job (`bash .ci/run &`) inherits SIGINT ignored, and Python then never raises
     # KeyboardInterrupt: give the launcher the disposition a terminal's foreground job has.
     proc = subprocess.Popen(
-        cmd,
+        [*cmd, *extra],
         cwd=tmp_path,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -163,14 +134,28 @@ def test_ctrl_c_stops_everything_and_resume_continues_the_run(tmp_path):
     )
     runs = RunStore(open_store(str(tmp_path)))
     deadline = time.monotonic() + 180
-    while time.monotonic() < deadline and len(runs.list_checkpoints("cc")) < 2:
+    while time.monotonic() < deadline and len(runs.list_checkpoints(run_id)) < checkpoints:
         time.sleep(1)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     out, _ = proc.communicate(timeout=60)
     assert proc.returncode == 0, out
-    assert "stopping" in out
     ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True).stdout
-    assert "--run-id cc" not in ps, "a role process outlived racer train"
+    assert f"--run-id {run_id}" not in ps, "a role process outlived racer train"
+    return out
+
+
+def test_sigterm_stops_everything_as_ctrl_c_does(tmp_path):
+    """``kill`` / ``docker stop`` send SIGTERM; the roles run in their own sessions, so the launcher must stop them."""
+    out = _interrupt_train(tmp_path, "st", [], 1, signal.SIGTERM)
+    assert RunStore(open_store(str(tmp_path))).list_checkpoints("st"), "no checkpoint within 180 s"
+    assert "stopping (Ctrl-C or SIGTERM)" in out
+
+
+def test_ctrl_c_stops_everything_and_resume_continues_the_run(tmp_path):
+    (tmp_path / "hp.json").write_text(json.dumps({**HP, "num_episodes_between_training": 4, "num_epochs": 1}))
+    out = _interrupt_train(tmp_path, "cc", ["--hyperparams", "hp.json"], 2, signal.SIGINT)
+    assert "stopping" in out
+    runs = RunStore(open_store(str(tmp_path)))
     before = runs.pointer("cc", "latest")
     assert before["version"] >= 1
 
