@@ -68,3 +68,20 @@ def test_the_reward_examples_constants_are_set_to_the_car(tmp_path) -> None:  # 
     spec.loader.exec_module(module)
     assert (module.MAX_SPEED, module.LATERAL_ACCEL, module.BRAKE) == (4.0, 3.2, 4.4)
     assert callable(module.reward_function)
+
+
+def test_the_bench_decays_learning_rate_and_entropy_and_the_oa_bench_keeps_them(tmp_path) -> None:  # noqa: ANN001
+    """bench race's hyperparameters file loads as racer train reads it, with the guard, target KL and both linear
+    schedules on; bench oa keeps constant rates (its figures were measured so)."""
+    from common.hyperparams import load_hyperparameters
+    from racer.bench_oa import OA_HYPERPARAMS
+    from racer.bench_race import _files
+    from trainer.ppo import scheduled
+
+    _, path = _files(tmp_path)
+    hp = load_hyperparameters(path)
+    assert hp.collapse_guard and hp.target_kl == 0.05
+    assert (hp.lr_schedule, hp.entropy_schedule) == ("linear", "linear")
+    last = hp.schedule_updates
+    assert scheduled(hp.lr_schedule, hp.lr, hp.lr_final_fraction, last, last) == pytest.approx(hp.lr * 0.1)
+    assert "lr_schedule" not in OA_HYPERPARAMS and OA_HYPERPARAMS["collapse_guard"] is True
