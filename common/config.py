@@ -19,13 +19,13 @@ FRAME_HEIGHT, FRAME_WIDTH = 120, 160
 """The camera frame a policy sees, pixels: DeepRacer's 160×120 grayscale. The camera renders it, the network is
 built for it, an exported model takes it."""
 
-NetworkName = Literal["shallow", "deep"]
+NetworkName = Literal["shallow", "deep", "deep_deep"]
 
 # DeepRacer's model_metadata "neural_network" names → racer's trunks.
 _METADATA_NETWORKS: dict[str, NetworkName] = {
     "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW": "shallow",
     "DEEP_CONVOLUTIONAL_NETWORK": "deep",
-    "DEEP_CONVOLUTIONAL_NETWORK_DEEP": "deep",
+    "DEEP_CONVOLUTIONAL_NETWORK_DEEP": "deep_deep",
 }
 
 
@@ -35,7 +35,8 @@ class PolicyConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     network: NetworkName = "shallow"
-    """Convolutional trunk: ``shallow`` (DeepRacer's 3 convs) or ``deep`` (4 convs)."""
+    """DeepRacer's network (``common.policy.TOPOLOGIES``): ``shallow`` (DEEP_CONVOLUTIONAL_NETWORK_SHALLOW), ``deep``
+    (DEEP_CONVOLUTIONAL_NETWORK) or ``deep_deep`` (DEEP_CONVOLUTIONAL_NETWORK_DEEP)."""
     dropout: float = Field(0.0, ge=0, lt=1)
     """Dropout probability before the dense layer; 0 = no Dropout module."""
     batch_norm: bool = False

@@ -5,38 +5,39 @@ C = stack_size stacked grayscale frames (2 × stack_size for the stereo pair: le
 when the run's sensors include a LiDAR, a float32 vector (B, N) (``common.sensors.observation_spec``). The network
 scales the frames to [0, 1] and moves channels first itself; the LiDAR values go in as they are, as in DeepRacer.
 
-Two trunks, named after DeepRacer's model_metadata ``neural_network``:
+The networks are the simapp's (aws-deepracer-community/deepracer-simapp, ``bundle/markov/``), one per model_metadata
+``neural_network`` and camera. ``agents/utils.py: get_network_settings`` builds every part with
+``EmbedderType.SCHEME`` (``architecture/embedder_factory.py: create_scheme``: the listed convs, then the listed dense
+layers, each with ReLU; the scheme's batch-norm, dropout and tanh entries are not used) and the middleware
+``VGG_MIDDLEWARE`` for DEEP_CONVOLUTIONAL_NETWORK_DEEP, else ``DEFAULT_MIDDLEWARE``
+(``architecture/custom_architectures.py``). Convs are (filters, kernel/stride), valid padding:
 
-* ``shallow`` (DEEP_CONVOLUTIONAL_NETWORK_SHALLOW), DeepRacer's 3-layer CNN:
-  conv 32 8×8/4 → conv 64 4×4/2 → conv 64 3×3/1 → dense 512, each followed by ReLU.
-  On 120×160 frames the last conv gives 64×11×16 = 11264 features.
-* ``deep`` (DEEP_CONVOLUTIONAL_NETWORK / _DEEP), for the front camera racer's 4-conv variant, not DeepRacer's exact
-  network: the shallow convs plus conv 128 3×3/1 → dense 512. On 120×160 frames the last conv gives 128×9×14.
-
-With the other sensors the layers are the simapp's (aws-deepracer-community/deepracer-simapp, ``bundle/markov/``):
-
-* STEREO_CAMERAS (``sensors/utils.py: get_stereo_camera_embedders``): ``shallow``: the shallow convs on the
-  2-channel pair; ``deep`` (DEEP_CONVOLUTIONAL_NETWORK and _DEEP alike): conv 32 3×3/1 → 64 3×3/2 → 64 3×3/1 →
-  128 3×3/2 → 128 3×3/1, on 120×160 frames 128×25×35 = 112000 features.
+* ``shallow`` (DEEP_CONVOLUTIONAL_NETWORK_SHALLOW), front camera and stereo pair alike (``sensors/utils.py:
+  get_front_camera_embedders``, ``get_stereo_camera_embedders``): conv 32 8/4 → 64 4/2 → 64 3/1, middleware dense
+  512. On 120×160 frames the last conv gives 64×11×16 = 11264 features.
+* ``deep`` (DEEP_CONVOLUTIONAL_NETWORK): front camera conv 32 5/2 → 32 3/1 → 64 3/2 → 64 3/1 (64×25×35) → dense 64;
+  stereo conv 32 3/1 → 64 3/2 → 64 3/1 → 128 3/2 → 128 3/1 (128×25×35 = 112000); middleware dense 512.
+* ``deep_deep`` (DEEP_CONVOLUTIONAL_NETWORK_DEEP): front camera conv 32 8/4 → 32 4/2 → 64 4/2 → 64 3/1 (64×3×6) →
+  dense 512 → 512; stereo as ``deep``; middleware dense 256 → 128 (``VGG_MIDDLEWARE``).
 * LIDAR / SECTOR_LIDAR (``sensors/utils.py: get_lidar_embedders``, the same for every ``neural_network``): dense
-  256 → dense 256, each with ReLU (``agents/utils.py: get_network_settings`` builds every embedder with
-  ``EmbedderType.SCHEME`` and ReLU, so the scheme's batch-norm and dropout entries are not used).
+  256 → dense 256.
 * The embeddings are concatenated in the sorted order of the sensor names (rl_coach
   ``architectures/tensorflow_components/general_network.py``: ``for input_name in sorted(...)``, ``tf.concat(...,
   name="merger")``), so the front camera's before the LiDAR's and the LiDAR's before the stereo pair's, then the
-  middleware dense 512 with ReLU (``DEFAULT_MIDDLEWARE``) and the heads. The simapp gives
-  DEEP_CONVOLUTIONAL_NETWORK_DEEP the ``VGG_MIDDLEWARE`` (dense 256 → 128) instead; racer's ``deep`` keeps 512 for
-  both deep names, as it does for the front camera. rl_coach's clipped PPO also gives the value and the policy
-  separate copies of this network (``use_separate_networks_per_head``); racer's heads share one.
+  middleware and the heads, which read the middleware's last layer (512 units, or 128 for ``deep_deep``).
+  rl_coach's clipped PPO also gives the value and the policy separate copies of this network
+  (``use_separate_networks_per_head``); racer's heads share one.
 
-Optional BatchNorm2d after each conv (before its ReLU) and Dropout before the dense 512 layer. The policy head gives
+racer's options (off in DeepRacer's files): BatchNorm2d after each conv (before its ReLU) and Dropout before the
+middleware. The policy head gives
 logits of a Categorical (discrete) or the mean of a diagonal Gaussian (continuous) whose log-std is a learned
 state-independent parameter. Continuous actions are in the env's units and are not squashed or clipped by the
 distribution: the env clips them. The Gaussian's mean is mid + half * head(h) and its std half * exp(log_std),
 with mid and half the centre and half-width of the action range, so one initialization suits degrees and m/s.
 
-A camera-only network keeps one ``trunk`` (convs, dense 512), so its state dict is the same as before LiDAR
-existed; a network with a LiDAR has ``camera_embedder`` (convs), ``lidar_embedder`` and ``middleware`` instead.
+A camera-only network keeps one ``trunk`` (convs, camera dense layers, middleware), so a shallow network's state
+dict is the same as before LiDAR existed; a network with a LiDAR has ``camera_embedder`` (convs, camera dense
+layers), ``lidar_embedder`` and ``middleware`` instead.
 
 Checkpoints are serialized with ``torch.save`` and read back with ``torch.load(weights_only=True)``, which
 refuses any pickled object other than tensors and plain containers. ``load_policy`` is the one way to get a stored
@@ -49,6 +50,7 @@ import io
 import math
 import pickle
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
@@ -70,19 +72,39 @@ if TYPE_CHECKING:
 Precision = Literal["fp32", "bf16"]
 ActionKind = Literal["discrete", "continuous"]
 
-_SHALLOW = ((32, 8, 4), (64, 4, 2), (64, 3, 1))
-# (out_channels, kernel, stride) of each conv layer, per camera and trunk.
-_CONV_LAYERS: dict[tuple[str, NetworkName], tuple[tuple[int, int, int], ...]] = {
-    (FRONT_FACING_CAMERA, "shallow"): _SHALLOW,
-    (FRONT_FACING_CAMERA, "deep"): (*_SHALLOW, (128, 3, 1)),
-    # simapp markov/sensors/utils.py get_stereo_camera_embedders
-    (STEREO_CAMERAS, "shallow"): _SHALLOW,
-    (STEREO_CAMERAS, "deep"): ((32, 3, 1), (64, 3, 2), (64, 3, 1), (128, 3, 2), (128, 3, 1)),
-}
 HIDDEN = 512
-"""Width of the dense layer after the convolutions (the simapp's ``DEFAULT_MIDDLEWARE``), units."""
+"""Width of ``DEFAULT_MIDDLEWARE``'s dense layer (the heads' input but for ``deep_deep``), units."""
 LIDAR_EMBEDDER: tuple[int, ...] = (256, 256)
 """Widths of the LiDAR embedder's dense layers (simapp markov/sensors/utils.py ``get_lidar_embedders``), units."""
+
+
+@dataclass(frozen=True)
+class Topology:
+    """One of the simapp's networks for one camera (module docstring)."""
+
+    convs: tuple[tuple[int, int, int], ...]
+    """(out_channels, kernel, stride) of each conv layer."""
+    camera_dense: tuple[int, ...] = ()
+    """The camera embedder's dense layers after the convs, units."""
+    middleware: tuple[int, ...] = (HIDDEN,)
+    """The middleware's dense layers after the merger, units; the last is the heads' input."""
+
+
+_SHALLOW = ((32, 8, 4), (64, 4, 2), (64, 3, 1))
+_STEREO_DEEP = ((32, 3, 1), (64, 3, 2), (64, 3, 1), (128, 3, 2), (128, 3, 1))
+_VGG_MIDDLEWARE = (256, 128)
+# simapp markov/sensors/utils.py get_front_camera_embedders / get_stereo_camera_embedders, agents/utils.py
+TOPOLOGIES: dict[tuple[str, NetworkName], Topology] = {
+    (FRONT_FACING_CAMERA, "shallow"): Topology(_SHALLOW),
+    (FRONT_FACING_CAMERA, "deep"): Topology(((32, 5, 2), (32, 3, 1), (64, 3, 2), (64, 3, 1)), (64,)),
+    (FRONT_FACING_CAMERA, "deep_deep"): Topology(
+        ((32, 8, 4), (32, 4, 2), (64, 4, 2), (64, 3, 1)), (512, 512), _VGG_MIDDLEWARE
+    ),
+    (STEREO_CAMERAS, "shallow"): Topology(_SHALLOW),
+    (STEREO_CAMERAS, "deep"): Topology(_STEREO_DEEP),
+    (STEREO_CAMERAS, "deep_deep"): Topology(_STEREO_DEEP, (), _VGG_MIDDLEWARE),
+}
+"""The network of each (camera, ``neural_network``)."""
 
 
 class CheckpointError(UserError, ValueError):
@@ -94,7 +116,7 @@ def conv_output_shape(
 ) -> tuple[int, int, int]:
     """(channels, height, width) of the last convolution's output for (H, W, C) frames (valid padding, as rl_coach's
     Keras ``Conv2D``)."""
-    layers = _CONV_LAYERS[camera, network]
+    layers = TOPOLOGIES[camera, network].convs
     h, w = obs_shape[0], obs_shape[1]
     for _, kernel, stride in layers:
         h, w = (h - kernel) // stride + 1, (w - kernel) // stride + 1
@@ -113,7 +135,7 @@ def _init(layer: nn.Module, gain: float) -> nn.Module:
 def _conv_trunk(in_channels: int, cfg: PolicyConfig, camera: str = FRONT_FACING_CAMERA) -> list[nn.Module]:
     """The convolutions of ``cfg.network`` for ``camera``, each with optional BatchNorm2d and a ReLU."""
     layers: list[nn.Module] = []
-    for out_channels, kernel, stride in _CONV_LAYERS[camera, cfg.network]:
+    for out_channels, kernel, stride in TOPOLOGIES[camera, cfg.network].convs:
         layers.append(_init(nn.Conv2d(in_channels, out_channels, kernel, stride), math.sqrt(2)))
         if cfg.batch_norm:
             layers.append(nn.BatchNorm2d(out_channels))
@@ -164,20 +186,25 @@ class ActorCritic(nn.Module):
         convs = _conv_trunk(self.obs_shape[2], cfg, camera)
         self.conv_out_shape = conv_output_shape(self.obs_shape, cfg.network, camera)
         dropout: list[nn.Module] = [nn.Dropout(cfg.dropout)] if cfg.dropout > 0 else []
-        camera_features = math.prod(self.conv_out_shape)
+        topology = TOPOLOGIES[camera, cfg.network]
+        flat = math.prod(self.conv_out_shape)
+        camera_part = [*convs, nn.Flatten(), *_dense(flat, topology.camera_dense)]
+        camera_width = topology.camera_dense[-1] if topology.camera_dense else flat
+        self.hidden = topology.middleware[-1]
+        """Width of the heads' input, units."""
         if not self.lidar_size:
             # Camera only: one Sequential, whose state dict keys are those of every checkpoint before LiDAR.
-            self.trunk = nn.Sequential(*convs, nn.Flatten(), *dropout, *_dense(camera_features, (HIDDEN,)))
+            self.trunk = nn.Sequential(*camera_part, *dropout, *_dense(camera_width, topology.middleware))
             self.camera_embedder = self.lidar_embedder = self.middleware = None
         else:
             self.trunk = None
-            self.camera_embedder = nn.Sequential(*convs, nn.Flatten())
+            self.camera_embedder = nn.Sequential(*camera_part)
             self.lidar_embedder = nn.Sequential(*_dense(self.lidar_size, LIDAR_EMBEDDER))
-            merged = camera_features + LIDAR_EMBEDDER[-1]
-            self.middleware = nn.Sequential(*dropout, *_dense(merged, (HIDDEN,)))
+            merged = camera_width + LIDAR_EMBEDDER[-1]
+            self.middleware = nn.Sequential(*dropout, *_dense(merged, topology.middleware))
             # rl_coach concatenates the embeddings in the sorted order of the input names.
             self._lidar_first = self.spec.lidar.name < camera
-        self.value_head = _init(nn.Linear(HIDDEN, 1), 1.0)
+        self.value_head = _init(nn.Linear(self.hidden, 1), 1.0)
         self.action_dim = self._build_policy_head(n_actions, action_low, action_high)
         self.trunk_dtype: torch.dtype | None = None
         """None = float32; torch.bfloat16 = the trunk under autocast (``set_trunk_precision``)."""
@@ -189,7 +216,7 @@ class ActorCritic(nn.Module):
         if self.action_kind == "discrete":
             if n_actions is None or n_actions < 1:
                 raise ValueError(f"a discrete policy needs n_actions >= 1, got {n_actions}")
-            self.policy_head = _init(nn.Linear(HIDDEN, n_actions), 0.01)
+            self.policy_head = _init(nn.Linear(self.hidden, n_actions), 0.01)
             return n_actions
         if self.action_kind != "continuous":
             raise ValueError(f"action_kind must be 'discrete' or 'continuous', got {self.action_kind!r}")
@@ -203,7 +230,7 @@ class ActorCritic(nn.Module):
         half = (hi - lo) / 2  # a zero-width range (low == high) gets a unit scale: a Normal needs std > 0
         self.register_buffer("action_mid", (hi + lo) / 2)
         self.register_buffer("action_half", torch.where(half > 0, half, torch.ones_like(half)))
-        self.policy_head = _init(nn.Linear(HIDDEN, len(low)), 0.01)
+        self.policy_head = _init(nn.Linear(self.hidden, len(low)), 0.01)
         self.log_std = nn.Parameter(torch.zeros(len(low)))
         return len(low)
 
@@ -218,7 +245,7 @@ class ActorCritic(nn.Module):
         self.trunk_dtype = torch.bfloat16 if precision == "bf16" else None
 
     def features(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> torch.Tensor:
-        """The trunk's 512 features (float32) of a uint8 (B, H, W, C) batch and, for a network with a LiDAR, its
+        """The trunk's ``hidden`` features (float32) of a uint8 (B, H, W, C) batch and, for a network with a LiDAR, its
         float32 (B, N) LiDAR vectors."""
         if obs.dtype != torch.uint8:
             raise TypeError(f"observations must be uint8 camera frames, got {obs.dtype}")

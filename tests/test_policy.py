@@ -59,6 +59,8 @@ FULL_SIZE = [
     ("shallow", "continuous", 2),
     ("deep", "discrete", 2),
     ("deep", "continuous", 1),
+    ("deep_deep", "discrete", 1),
+    ("deep_deep", "continuous", 2),
 ]
 
 
@@ -84,11 +86,24 @@ def test_shallow_trunk_is_deepracers() -> None:
     assert (dense.in_features, dense.out_features) == (64 * 11 * 16, HIDDEN) == (11264, 512)
 
 
-def test_deep_trunk_has_four_convs() -> None:
+def test_the_deep_networks_are_the_simapps() -> None:
+    """simapp markov/sensors/utils.py get_front_camera_embedders and agents/utils.py get_network_settings: the
+    DEEP_CONVOLUTIONAL_NETWORK's 4 convs and dense 64 before the middleware's 512; the _DEEP one's 4 convs, dense
+    512 → 512, then VGG_MIDDLEWARE's 256 → 128, which the heads read."""
     model = _full_size("deep", "discrete", 2)
     convs = [m for m in model.trunk if isinstance(m, nn.Conv2d)]
-    assert [(c.in_channels, c.out_channels) for c in convs] == [(2, 32), (32, 64), (64, 64), (64, 128)]
-    assert model.conv_out_shape == (128, 9, 14)
+    got = [(c.in_channels, c.out_channels, c.kernel_size[0], c.stride[0]) for c in convs]
+    assert got == [(2, 32, 5, 2), (32, 32, 3, 1), (32, 64, 3, 2), (64, 64, 3, 1)]
+    assert model.conv_out_shape == (64, 25, 35)
+    dense = [(m.in_features, m.out_features) for m in model.trunk if isinstance(m, nn.Linear)]
+    assert dense == [(64 * 25 * 35, 64), (64, 512)] and model.hidden == 512
+    deeper = _full_size("deep_deep", "discrete", 1)
+    convs = [m for m in deeper.trunk if isinstance(m, nn.Conv2d)]
+    got = [(c.in_channels, c.out_channels, c.kernel_size[0], c.stride[0]) for c in convs]
+    assert got == [(1, 32, 8, 4), (32, 32, 4, 2), (32, 64, 4, 2), (64, 64, 3, 1)]
+    dense = [(m.in_features, m.out_features) for m in deeper.trunk if isinstance(m, nn.Linear)]
+    assert dense == [(64 * 3 * 6, 512), (512, 512), (512, 256), (256, 128)]
+    assert deeper.policy_head.in_features == deeper.value_head.in_features == deeper.hidden == 128
 
 
 def test_conv_output_shape_checks_frame_size() -> None:
@@ -175,7 +190,7 @@ def test_batch_norm_and_dropout_flags() -> None:
 def test_network_from_metadata() -> None:
     assert network_from_metadata("DEEP_CONVOLUTIONAL_NETWORK_SHALLOW") == "shallow"
     assert network_from_metadata("DEEP_CONVOLUTIONAL_NETWORK") == "deep"
-    assert network_from_metadata("DEEP_CONVOLUTIONAL_NETWORK_DEEP") == "deep"
+    assert network_from_metadata("DEEP_CONVOLUTIONAL_NETWORK_DEEP") == "deep_deep"
     with pytest.raises(ValueError, match="unknown neural_network"):
         network_from_metadata("RESNET")
 

@@ -34,7 +34,6 @@ from common.config import PolicyConfig, RunConfig, network_from_metadata
 from common.framestack import FrameStack
 from common.hyperparams import Hyperparameters
 from common.policy import (
-    HIDDEN,
     LIDAR_EMBEDDER,
     ActorCritic,
     action_space_spec,
@@ -57,7 +56,7 @@ from model_store import LocalStore, RunStore
 
 DISCRETE = {"kind": "discrete", "n": 10}
 CONTINUOUS = {"kind": "continuous", "low": [-30.0, 0.5], "high": [30.0, 4.0]}
-SMALL = (52, 52)  # the smallest frames every trunk takes (the front deep trunk: 52 → 12 → 5 → 3 → 1): fast tests
+SMALL = (52, 52)  # small frames the shallow and deep networks take (deep_deep needs 76): fast tests
 
 
 def _camera(batch: int, shape: tuple[int, ...], seed: int = 0) -> torch.Tensor:
@@ -239,13 +238,31 @@ SHALLOW_CONVS = {  # conv 32 8/4, 64 4/2, 64 3/1 → 64 × 11 × 16 = 11264 feat
 STEREO_DEEP_CONVS = (  # conv 32 3/1, 64 3/2, 64 3/1, 128 3/2, 128 3/1 → 118×158, 58×78, 56×76, 27×37, 25×35
     _conv(2, 32, 3) + _conv(32, 64, 3) + _conv(64, 64, 3) + _conv(64, 128, 3) + _conv(128, 128, 3)
 )  # 608 + 18496 + 36928 + 73856 + 147584 = 277472 → 128 × 25 × 35 = 112000 features
-FRONT_DEEP_CONVS = SHALLOW_CONVS[1] + _conv(64, 128, 3)  # racer's 4-conv variant: 71840 + 73856 → 128 × 9 × 14
-FEATURES = {  # (camera, racer trunk) → (conv parameters, flattened features)
-    (FRONT_FACING_CAMERA, "shallow"): (SHALLOW_CONVS[1], 64 * 11 * 16),
-    (FRONT_FACING_CAMERA, "deep"): (FRONT_DEEP_CONVS, 128 * 9 * 14),
-    (STEREO_CAMERAS, "shallow"): (SHALLOW_CONVS[2], 64 * 11 * 16),
-    (STEREO_CAMERAS, "deep"): (STEREO_DEEP_CONVS, 128 * 25 * 35),
+FRONT_DEEP_CONVS = (  # DEEP_CONVOLUTIONAL_NETWORK: conv 32 5/2, 32 3/1, 64 3/2, 64 3/1 → 58×78, 56×76, 27×37, 25×35
+    _conv(1, 32, 5) + _conv(32, 32, 3) + _conv(32, 64, 3) + _conv(64, 64, 3)
+)  # 832 + 9248 + 18496 + 36928 = 65504 → 64 × 25 × 35 = 56000 features → dense 64
+FRONT_DEEP_DEEP_CONVS = (  # …_DEEP: conv 32 8/4, 32 4/2, 64 4/2, 64 3/1 → 29×39, 13×18, 5×8, 3×6
+    _conv(1, 32, 8) + _conv(32, 32, 4) + _conv(32, 64, 4) + _conv(64, 64, 3)
+)  # 2080 + 16416 + 32832 + 36928 = 88256 → 64 × 3 × 6 = 1152 features → dense 512 → 512
+VGG = (256, 128)
+FEATURES = {  # (camera, racer network) → (conv parameters, flattened features, camera dense widths, middleware widths)
+    (FRONT_FACING_CAMERA, "shallow"): (SHALLOW_CONVS[1], 64 * 11 * 16, (), (512,)),
+    (FRONT_FACING_CAMERA, "deep"): (FRONT_DEEP_CONVS, 64 * 25 * 35, (64,), (512,)),
+    (FRONT_FACING_CAMERA, "deep_deep"): (FRONT_DEEP_DEEP_CONVS, 64 * 3 * 6, (512, 512), VGG),
+    (STEREO_CAMERAS, "shallow"): (SHALLOW_CONVS[2], 64 * 11 * 16, (), (512,)),
+    (STEREO_CAMERAS, "deep"): (STEREO_DEEP_CONVS, 128 * 25 * 35, (), (512,)),
+    (STEREO_CAMERAS, "deep_deep"): (STEREO_DEEP_CONVS, 128 * 25 * 35, (), VGG),
 }
+
+
+def _chain(n_in: int, widths: tuple[int, ...]) -> tuple[int, int]:
+    """(parameters, output width) of dense layers of ``widths`` after ``n_in`` inputs."""
+    total = 0
+    for width in widths:
+        total, n_in = total + _dense(n_in, width), width
+    return total, n_in
+
+
 LIDAR_EMBEDDERS = {LIDAR: _dense(64, 256) + _dense(256, 256), SECTOR_LIDAR: _dense(8, 256) + _dense(256, 256)}
 # 16640 + 65792 = 82432, and 2304 + 65792 = 68096
 
@@ -258,21 +275,21 @@ def test_every_allowed_list_builds_with_every_deepracer_network(sensors, neural_
     camera, lidar = sensors[0], (sensors[1] if len(sensors) > 1 else None)
     with mock.patch.object(nn.init, "orthogonal_", lambda tensor, gain=1.0: tensor):  # shapes do not need the QR
         model = _model(sensors, network=network, frame=(120, 160))
-    convs, features = FEATURES[camera, network]
-    heads = _dense(HIDDEN, 1) + _dense(HIDDEN, 10)  # value, 10 logits
+    convs, features, camera_dense, middleware = FEATURES[camera, network]
+    dense, camera_width = _chain(features, camera_dense)
+    merged = camera_width + (LIDAR_EMBEDDER[-1] if lidar else 0)  # the concatenation
+    top, hidden = _chain(merged, middleware)
+    heads = _dense(hidden, 1) + _dense(hidden, 10)  # value, 10 logits
+    assert math.prod(model.conv_out_shape) == features and model.hidden == hidden
     if lidar is None:
         assert model.lidar_size == 0 and model.lidar_embedder is None
-        assert _count(model.trunk) == convs + _dense(features, HIDDEN)
-        assert math.prod(model.conv_out_shape) == features
+        assert _count(model.trunk) == convs + dense + top
     else:
         assert model.lidar_size == {LIDAR: 64, SECTOR_LIDAR: 8}[lidar] and model.trunk is None
-        assert _count(model.camera_embedder) == convs
+        assert _count(model.camera_embedder) == convs + dense
         assert _count(model.lidar_embedder) == LIDAR_EMBEDDERS[lidar]
-        assert _count(model.middleware) == _dense(features + LIDAR_EMBEDDER[-1], HIDDEN)  # the concatenation → 512
-    assert (
-        _count(model)
-        == convs + (LIDAR_EMBEDDERS[lidar] if lidar else 0) + _dense(features + (256 if lidar else 0), HIDDEN) + heads
-    )
+        assert _count(model.middleware) == top
+    assert _count(model) == convs + dense + (LIDAR_EMBEDDERS[lidar] if lidar else 0) + top + heads
     obs = _camera(2, model.obs_shape)
     params, value = model(obs, _lidar(2, lidar) if lidar else None)
     assert params.shape == (2, 10) and value.shape == (2,)
@@ -280,7 +297,10 @@ def test_every_allowed_list_builds_with_every_deepracer_network(sensors, neural_
 
 def test_hand_counted_totals() -> None:
     """The sums above, as numbers (stack 1, 10 actions): what the parametrized test asserts, spelled out."""
-    assert SHALLOW_CONVS == {1: 71840, 2: 73888} and STEREO_DEEP_CONVS == 277472 and FRONT_DEEP_CONVS == 145696
+    assert SHALLOW_CONVS == {1: 71840, 2: 73888} and STEREO_DEEP_CONVS == 277472
+    assert FRONT_DEEP_CONVS == 65504 and FRONT_DEEP_DEEP_CONVS == 88256
+    assert _chain(56000, (64,)) == (3584064, 64) and _chain(1152, (512, 512)) == (590336 + 262656, 512)
+    assert _chain(512 + 256, VGG) == (196864 + 32896, 128)
     assert LIDAR_EMBEDDERS == {LIDAR: 82432, SECTOR_LIDAR: 68096}
     assert _dense(11264, 512) == 5767680 and _dense(11264 + 256, 512) == 5898752
     assert _dense(112000, 512) == 57344512 and _dense(112000 + 256, 512) == 57475584
