@@ -70,18 +70,21 @@ def test_the_reward_examples_constants_are_set_to_the_car(tmp_path) -> None:  # 
     assert callable(module.reward_function)
 
 
-def test_the_bench_decays_learning_rate_and_entropy_and_the_oa_bench_keeps_them(tmp_path) -> None:  # noqa: ANN001
-    """bench race's hyperparameters file loads as racer train reads it, with the guard, target KL and both linear
-    schedules on; bench oa keeps constant rates (its figures were measured so)."""
-    from common.hyperparams import load_hyperparameters
+def test_the_bench_turns_racers_stability_knobs_on_and_keeps_deepracers_rates(tmp_path) -> None:  # noqa: ANN001
+    """bench race's hyperparameters file loads as racer train reads it: the collapse guard from a nearly robust best
+    and target-KL early stopping on; learning rate and entropy constant, as in DeepRacer; bench oa the same."""
+    from common.hyperparams import Hyperparameters, load_hyperparameters
     from racer.bench_oa import OA_HYPERPARAMS
-    from racer.bench_race import _files
-    from trainer.ppo import scheduled
+    from racer.bench_race import RACE_HYPERPARAMS, _files
 
     _, path = _files(tmp_path)
     hp = load_hyperparameters(path)
-    assert hp.collapse_guard and hp.target_kl == 0.05
-    assert (hp.lr_schedule, hp.entropy_schedule) == ("linear", "linear")
-    last = hp.schedule_updates
-    assert scheduled(hp.lr_schedule, hp.lr, hp.lr_final_fraction, last, last) == pytest.approx(hp.lr * 0.1)
-    assert "lr_schedule" not in OA_HYPERPARAMS and OA_HYPERPARAMS["collapse_guard"] is True
+    assert hp.collapse_guard and hp.collapse_min_best == 0.9 and hp.target_kl == 0.05
+    defaults = Hyperparameters()
+    assert (hp.lr_schedule, hp.entropy_schedule, hp.lr, hp.beta_entropy) == (
+        "constant",
+        "constant",
+        defaults.lr,
+        defaults.beta_entropy,
+    )
+    assert OA_HYPERPARAMS == RACE_HYPERPARAMS
