@@ -413,6 +413,33 @@ def checkpoint_from_bytes(data: bytes) -> tuple[dict[str, Any], dict[str, Any] |
     return ckpt["model"], optimizer
 
 
+def misfit(model: nn.Module, state: dict[str, Any]) -> str | None:
+    """How a state dict does not fit ``model`` (layers of other shapes, or layers only one of them has), in a few
+    words; None if it fits."""
+    ours = model.state_dict()
+    wrong = [
+        f"{k} {tuple(v.shape)} vs {tuple(ours[k].shape)}"
+        for k, v in state.items()
+        if k in ours and v.shape != ours[k].shape
+    ]
+    missing = sorted(set(ours) ^ set(state))
+    if not (wrong or missing):
+        return None
+    return "; ".join(wrong[:2]) or f"layers differ: {', '.join(missing[:3])}"
+
+
+def load_weights(model: ActorCritic, state: dict[str, Any], source: str) -> None:
+    """Load ``state`` into ``model``; CheckpointError naming ``source`` (e.g. "run r version 3") and the network
+    when the weights were made for another network (a run from before racer's networks became the simapp's, say)."""
+    problem = misfit(model, state)
+    if problem:
+        sensors = "+".join(model.spec.sensors)
+        raise CheckpointError(
+            f"{source}: its weights do not fit a {model.cfg.network} network for {sensors} ({problem})"
+        )
+    model.load_state_dict(state)
+
+
 def load_policy(
     runs: RunStore,
     run: RunConfig | str,
@@ -434,7 +461,9 @@ def load_policy(
     payload, meta = runs.load_checkpoint(run.run_id, checkpoint)
     spec = observation_spec(actions.sensor, run.hyperparams.stack_size)
     model = build_policy(spec.camera_shape(frame), action_space_spec(actions), run.policy, actions.sensor)
-    model.load_state_dict(checkpoint_from_bytes(payload)[0])
+    load_weights(
+        model, checkpoint_from_bytes(payload)[0], f"run {run.run_id} checkpoint {meta.get('version', checkpoint)}"
+    )
     model.eval()
     return model, meta
 

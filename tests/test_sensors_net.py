@@ -410,3 +410,17 @@ def test_a_stored_stereo_lidar_checkpoint_loads_for_acting(tmp_path: Path) -> No
     with pytest.raises(RuntimeError):
         _model((FRONT_FACING_CAMERA,), network="deep", stack=2).load_state_dict(state)
     assert action_space_spec(actions) == DISCRETE  # the sensors travel beside the spec, not in it
+
+
+def test_a_checkpoint_made_for_another_network_is_one_clear_error(tmp_path: Path) -> None:
+    """A run whose config names a network its stored weights were not made for (a run from before racer's deep
+    networks became the simapp's): load_policy names the run, the checkpoint and the network, in one line."""
+    from common.policy import CheckpointError
+
+    runs = RunStore(LocalStore(tmp_path))
+    runs.write_config(RunConfig(run_id="old", policy=PolicyConfig(network="deep")))
+    shallow = _model((FRONT_FACING_CAMERA,), frame=(120, 160))
+    runs.save_checkpoint("old", 3, checkpoint_to_bytes(shallow.state_dict()), {"env_steps": 0})
+    with pytest.raises(CheckpointError, match=r"run old checkpoint 3: its weights do not fit a deep network") as err:
+        load_policy(runs, "old", default_action_space(), "latest")
+    assert "\n" not in str(err.value)

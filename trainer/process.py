@@ -37,6 +37,8 @@ from common.policy import (
     build_policy,
     checkpoint_from_bytes,
     checkpoint_to_bytes,
+    load_weights,
+    misfit,
     state_dict_from_bytes,
     state_dict_to_bytes,
 )
@@ -275,7 +277,7 @@ class Trainer:
             log.warning("latest pointer names version %s but version %d is whole: resuming from it", pointer, newest)
             self.runs.set_pointer(self.run.run_id, "latest", newest)
         payload, meta = self.runs.load_checkpoint(self.run.run_id, newest)
-        self._load_state(payload, self.runs.load_optimizer(self.run.run_id, newest))
+        self._load_state(payload, self.runs.load_optimizer(self.run.run_id, newest), newest)
         self.version = int(meta["version"])
         self.stats.env_steps = int(meta.get("env_steps", 0))
         self.stats.episodes = int(meta.get("episodes", 0))
@@ -287,11 +289,11 @@ class Trainer:
             self.metrics = [json.loads(line) for line in lines if line.strip()]
         log.info("resumed run %s at version %d (%d env steps)", self.run.run_id, self.version, self.stats.env_steps)
 
-    def _load_state(self, payload: bytes, optimizer: bytes | None) -> None:
+    def _load_state(self, payload: bytes, optimizer: bytes | None, version: int) -> None:
         """Weights from checkpoint bytes, and the optimizer state saved beside them (or, from a trainer before
         racer kept it apart, inside them); without either the optimizer starts afresh."""
         model_sd, optim_sd = checkpoint_from_bytes(payload)
-        self.model.load_state_dict(model_sd)
+        load_weights(self.model, model_sd, f"run {self.run.run_id} version {version}")
         if optimizer is not None:
             optim_sd = state_dict_from_bytes(optimizer)
         if optim_sd is None:
@@ -306,15 +308,8 @@ class Trainer:
         source, _, which = str(self.run.pretrained).partition(":")
         payload, meta = self.runs.load_checkpoint(source, which)
         model_sd, _ = checkpoint_from_bytes(payload)
-        ours = self.model.state_dict()
-        wrong = [
-            f"{k} {tuple(v.shape)} vs {tuple(ours[k].shape)}"
-            for k, v in model_sd.items()
-            if k in ours and v.shape != ours[k].shape
-        ]
-        missing = sorted(set(ours) ^ set(model_sd))
-        if wrong or missing:
-            detail = "; ".join(wrong[:2]) or f"layers differ: {', '.join(missing[:3])}"
+        detail = misfit(self.model, model_sd)
+        if detail:
             raise PretrainedError(
                 f"pretrained {self.run.pretrained}: the network's shapes differ from this run's ({detail})"
             )
@@ -541,7 +536,7 @@ class Trainer:
         old_lr = self.learning_rate()
         if optimizer is None:  # not kept (a best from before the guard was on): its weights, a fresh optimizer
             log.warning("collapse guard: v%d's optimizer state was not kept; rolling back its weights", best_version)
-        self._load_state(payload, optimizer)
+        self._load_state(payload, optimizer, best_version)
         self.stability.lr_scale *= self.hp.collapse_lr_factor
         self.stability.rollbacks += 1
         for _ in self.buffer:
