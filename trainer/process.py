@@ -290,8 +290,9 @@ class Trainer:
         log.info("resumed run %s at version %d (%d env steps)", self.run.run_id, self.version, self.stats.env_steps)
 
     def _load_state(self, payload: bytes, optimizer: bytes | None, version: int) -> None:
-        """Weights from checkpoint bytes, and the optimizer state saved beside them (or, from a trainer before
-        racer kept it apart, inside them); without either the optimizer starts afresh."""
+        """Weights from the bytes of checkpoint ``version``, and the optimizer state saved beside them (or, from a
+        trainer before racer kept it apart, inside them); without either the optimizer starts afresh. Weights made
+        for another network are one CheckpointError naming the run and the version."""
         model_sd, optim_sd = checkpoint_from_bytes(payload)
         load_weights(self.model, model_sd, f"run {self.run.run_id} version {version}")
         if optimizer is not None:
