@@ -38,7 +38,7 @@ class PolicyConfig(BaseModel):
     """DeepRacer's network (``common.policy.TOPOLOGIES``): ``shallow`` (DEEP_CONVOLUTIONAL_NETWORK_SHALLOW), ``deep``
     (DEEP_CONVOLUTIONAL_NETWORK) or ``deep_deep`` (DEEP_CONVOLUTIONAL_NETWORK_DEEP)."""
     dropout: float = Field(0.0, ge=0, lt=1)
-    """Dropout probability before the dense layer; 0 = no Dropout module."""
+    """Dropout probability before the middleware's dense layers; 0 = no Dropout module (DeepRacer's)."""
     batch_norm: bool = False
     """BatchNorm2d after each convolution."""
     l2: float = Field(0.0, ge=0)
