@@ -1,9 +1,6 @@
 """A classical controller that drives a racing line in the real env: it checks that a computed lap-time limit can
 be driven (``racer limit``'s driven lap).
 
-The speed command is the line's speed profile a little ahead (the command acts on the next control period and the
-wheels need a moment), divided by the car's speed-per-command ratio (its wheels slip slightly).
-
 The steering is a small model-predictive controller, because a geometric follower cannot drive a car whose
 steering lags: DeepRacer's Gazebo car turns its wheels with a time constant of half a second, and racer's first
 follower (pure pursuit with a speed-dependent look-ahead) drove it off reInvent2019_track in its first bends.
@@ -13,20 +10,26 @@ Every control period:
    this speed and steering angle (``CarLimits.curvature_by_steering``, understeer included), the wheels follow
    the command with the measured steering time constant, the speeds are the profile's. Every pair of steering
    commands (one for the first third of the horizon, one after it, 13 angles each) is scored by the summed squared
-   distance of the car's centre to the line, plus a steep cost for leaving the line's corridor (the line may run
-   within a few centimetres of the off-track boundary, so a deviation outwards costs far more than one inwards);
-   the horizon is twice the steering time constant plus half a second.
-2. **Check** on the simulator itself: the best plan and its neighbours (±2° on either piece) are driven on the
-   env's own physics from a snapshot, with the speed commands the controller would give, and scored the same way;
-   the snapshot is restored after each. The kinematic model misses what the car does between steady states
-   (sliding, load transfer); the simulator does not.
+   distance of the car's centre to the line, plus its heading's squared difference from the line's (a lagging car
+   that reaches the line pointing across it leaves it again), plus a steep cost for leaving the line's corridor
+   (the line may run within a few centimetres of the off-track boundary, so a deviation outwards costs far more
+   than one inwards); the horizon is twice the steering time constant plus half a second.
+2. **Check** on the simulator itself: the best plan and its neighbours (±2° on either piece), the previous
+   period's choice one period on, and the wheels held where they are, are driven on the env's own physics from a
+   snapshot, with the speed commands the controller would give, and scored the same way; the snapshot is restored
+   after each. The kinematic model misses what the car does between steady states (sliding, load transfer); the
+   simulator does not.
 3. The best checked plan's first command is sent.
 
+The speed command is the car's top command where the profile ahead is faster than the car, its lowest where the
+profile ahead is slower (the profile's acceleration and braking were measured at those commands), and otherwise the
+profile's speed a little ahead (the command acts on the next control period and the wheels need a moment), divided
+by the car's speed-per-command ratio (its wheels slip slightly).
+
 Measured on the bundled loops (docs/racing.md, ``racer limit``): the default car is driven within 3.3 % of its
-limit on each of the ten measured (pure pursuit once managed 9 of 11 within 5 % of an older, slower limit). The
-Gazebo car, driven at its limit, may leave the track in one bend and not on a second try a little slower there:
-``drive_line`` slows the stretch before the place where a try left the track and tries again (:data:`PACE_STEP`), so
-the rest of the lap keeps the profile's speeds.
+limit on each of the loops measured. The Gazebo car, driven at its limit, may still leave the track in one bend and
+not on a second try a little slower there: ``drive_line`` slows the stretch before the place where a try left the
+track and tries again (:data:`PACE_STEP`), so the rest of the lap keeps the profile's speeds.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ import numpy as np
 from common.car_calibration import CarCalibration
 from common.config import EnvConfig
 from sim.car_limits import CarLimits
-from sim.physics import MAX_STEERING_DEG, WHEELBASE_M, CarPhysics
+from sim.physics import MAX_STEERING_DEG, SPEED_RANGE_MPS, WHEELBASE_M, CarPhysics
 from sim.raceline import RacingLine
 from sim.world import CONTROL_HZ
 
@@ -61,6 +64,10 @@ CHECK_STEPS = 12
 """Control periods (0.8 s) each checked plan is driven on the simulator."""
 DENSE_PER_POINT = 5
 """The line is resampled this many times finer (every 2 cm) for distances."""
+HEADING_WEIGHT = 0.6
+"""Cost of a squared radian of heading off the line's, in squared metres off the line. Without it the plans only
+chase the line's position, which a car whose steering lags half a second reaches too late: it arrives on the line
+pointing across it."""
 CORRIDOR_WEIGHT = 100.0
 """Cost of a squared metre outside the corridor, relative to a squared metre off the line."""
 
@@ -86,6 +93,7 @@ class LineFollower:
     _pace: np.ndarray = field(init=False, repr=False)
     _split: int = field(init=False)
     _near: int = field(default=0, init=False)
+    _last: np.ndarray | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         pts = self.line.points
@@ -100,6 +108,8 @@ class LineFollower:
         self._normal = np.repeat(cor.normal, DENSE_PER_POINT, axis=0)
         self._low, self._high = np.repeat(cor.low, DENSE_PER_POINT), np.repeat(cor.high, DENSE_PER_POINT)
         self._dense_step = float(np.mean(self.line.ds)) / DENSE_PER_POINT
+        tangent = np.roll(self._dense, -1, axis=0) - self._dense
+        self._heading = np.arctan2(tangent[:, 1], tangent[:, 0])
         self._kappa = _curvature_grid(self.limits)
         horizon = math.ceil((HORIZON_LAG_FACTOR * self.limits.steering_tau_s + HORIZON_EXTRA_S) / PERIOD_S)
         self._split = max(horizon // 3, 1)
@@ -132,6 +142,10 @@ class LineFollower:
             # to its error): commanding the profile's own speed, the Gazebo car lost 0.36 s of a 7.6 s limit in
             # the first 2 m of reInvent2019_track alone.
             return self.limits.max_command_speed
+        if target < speed - ACCEL_MARGIN_MPS:
+            # Likewise the profile's braking is the car's at the lowest command: asked for the profile's speed, the
+            # Gazebo car's lagging velocity servo carried 0.5 m/s too much into reInvent2019_track's bends.
+            return SPEED_RANGE_MPS[0]
         return target / self.limits.speed_per_command
 
     def _plan(self, physics: CarPhysics, profile: np.ndarray) -> np.ndarray:
@@ -145,7 +159,7 @@ class LineFollower:
         steer = np.full(n, physics.steering_deg)
         yaw = np.full(n, pose.yaw)
         rear = np.tile(pose.ahead(-WHEELBASE_M / 2), (n, 1))
-        centres = np.empty((n, horizon, 2))
+        centres, yaws = np.empty((n, horizon, 2)), np.empty((n, horizon))
         for k in range(horizon):
             steer = plans[:, k] + (steer - plans[:, k]) * lag
             turn = speeds[k] * self._curvature(speeds[k], steer) * PERIOD_S
@@ -153,20 +167,24 @@ class LineFollower:
             rear = rear + speeds[k] * PERIOD_S * np.column_stack([np.cos(mid), np.sin(mid)])
             yaw = yaw + turn
             centres[:, k] = rear + WHEELBASE_M / 2 * np.column_stack([np.cos(yaw), np.sin(yaw)])
+            yaws[:, k] = yaw
         reach = int((s_ahead[-1] - self._s[self._near]) / self._dense_step) + 60
-        cost = self._cost(centres.reshape(-1, 2), self._near, reach).reshape(n, horizon).sum(axis=1)
+        cost = self._cost(centres.reshape(-1, 2), self._near, reach, yaws.reshape(-1)).reshape(n, horizon).sum(axis=1)
         return plans[int(np.argmin(cost))]
 
-    def _cost(self, points: np.ndarray, near: int, ahead: int) -> np.ndarray:
-        """Each point's squared distance to the line plus the corridor's cost, the line searched from a little
-        behind line point ``near``."""
+    def _cost(self, points: np.ndarray, near: int, ahead: int, yaw: np.ndarray | None = None) -> np.ndarray:
+        """Each point's squared distance to the line plus the corridor's cost (plus the heading's, given the car's
+        ``yaw`` at each point), the line searched from a little behind line point ``near``."""
         window = (near * DENSE_PER_POINT + np.arange(-5 * DENSE_PER_POINT, ahead)) % len(self._dense)
         d2 = ((points[:, None, :] - self._dense[window][None, :, :]) ** 2).sum(axis=-1)
         closest = np.argmin(d2, axis=1)
         j = window[closest]
         lateral = np.einsum("ij,ij->i", points - self._centre[j], self._normal[j])
         outside = np.maximum(lateral - self._high[j], 0.0) + np.maximum(self._low[j] - lateral, 0.0)
-        return d2[np.arange(len(points)), closest] + CORRIDOR_WEIGHT * outside**2
+        cost = d2[np.arange(len(points)), closest] + CORRIDOR_WEIGHT * outside**2
+        if yaw is not None:
+            cost = cost + HEADING_WEIGHT * (np.angle(np.exp(1j * (yaw - self._heading[j])))) ** 2
+        return cost
 
     def _curvature(self, speed: float, steer_deg: np.ndarray) -> np.ndarray:
         """Signed curvature the car holds at ``speed`` with its wheels at ``steer_deg`` (the measured trials,
@@ -180,19 +198,33 @@ class LineFollower:
         return np.sign(steer_deg) * np.interp(np.abs(steer_deg), grid, row)
 
     def _check(self, physics: CarPhysics, plan: np.ndarray, profile: np.ndarray) -> float:
-        """The first steering command of the best of the plan's neighbours, driven on the simulator."""
+        """The first steering command of the best of the plan's neighbours, the previous period's choice and the
+        wheels held, driven on the simulator."""
         saved = physics.snapshot()
         steps = min(CHECK_STEPS, len(plan))
-        best, best_cost = float(plan[0]), math.inf
-        for first in CHECK_OFFSETS_DEG:
-            for then in CHECK_OFFSETS_DEG:
-                trial = plan[:steps] + np.where(np.arange(steps) < self._split, first, then)
-                trial = np.clip(trial, -MAX_STEERING_DEG, MAX_STEERING_DEG)
-                cost = self._drive_ahead(physics, trial, profile)
-                if cost < best_cost:
-                    best, best_cost = float(trial[0]), cost
-                physics.restore(saved)
-        return best
+        trials = [
+            np.clip(
+                plan[:steps] + np.where(np.arange(steps) < self._split, first, then),
+                -MAX_STEERING_DEG,
+                MAX_STEERING_DEG,
+            )
+            for first in CHECK_OFFSETS_DEG
+            for then in CHECK_OFFSETS_DEG
+        ]
+        if self._last is not None:
+            # Where the kinematic model is wrong (the Gazebo car at its grip limit turns less than its steady-state
+            # trials did) all nine neighbours may unwind the wheels in a bend; the last period's choice, one period
+            # on, and the wheels held where they are, keep a plan that the simulator showed to work.
+            trials.append(np.append(self._last[1:], self._last[-1]))
+            trials.append(np.full(steps, physics.steering_deg))
+        best, best_cost = trials[0], math.inf
+        for trial in trials:
+            cost = self._drive_ahead(physics, trial, profile)
+            if cost < best_cost:
+                best, best_cost = trial, cost
+            physics.restore(saved)
+        self._last = best
+        return float(best[0])
 
     def _drive_ahead(self, physics: CarPhysics, steering: np.ndarray, profile: np.ndarray) -> float:
         """The plan's cost (``_cost`` summed) over a drive of these steering commands on ``physics``."""
@@ -203,7 +235,7 @@ class LineFollower:
             pose = physics.pose
             here = np.array([pose.x, pose.y])
             near = self._nearest(here, near)
-            cost += float(self._cost(here[None, :], near, 10 * DENSE_PER_POINT)[0])
+            cost += float(self._cost(here[None, :], near, 10 * DENSE_PER_POINT, np.array([pose.yaw]))[0])
         return cost
 
 
@@ -255,14 +287,32 @@ def drive_line(
     """Drive ``line`` round ``track`` from DeepRacer's start (waypoint 0, at rest) in the real env; where a try
     leaves the track, slow the stretch before that place by :data:`PACE_STEP` and try again, up to
     :data:`MAX_TRIES` laps (the last try's lap if none completes)."""
+    env = follower_env(track, limits, car, max_seconds)
+    try:
+        pace = np.ones(len(line.points))
+        tries = 0
+        while True:
+            tries += 1
+            lap = _drive(env, LineFollower(line, limits, pace))
+            if lap.status == "lap_complete" or not len(lap.path) or tries == MAX_TRIES:
+                break
+            pace[_stretch_before(line, lap.path[-1])] *= PACE_STEP
+        slowed = float(line.ds[pace < 1.0].sum())
+        return DrivenLap(lap.status, lap.lap_time, lap.progress, lap.path, float(pace.min()), slowed, tries)
+    finally:
+        env.close()
+
+
+def follower_env(track: str, limits: CarLimits, car: CarCalibration | None = None, max_seconds: float = 120.0):  # noqa: ANN201 - a RacerEnv (imported lazily)
+    """A ``RacerEnv`` on ``track`` for the follower: DeepRacer's start at rest, no randomization, and a continuous
+    action space up to the car's highest command (the controller needs in-between values)."""
     from sim.env import RacerEnv
 
     with tempfile.TemporaryDirectory(prefix="racer-limit-") as tmp:
-        # A continuous action space up to the car's highest command: the controller needs in-between values.
         meta = Path(tmp) / "model_metadata.json"
         space = {
             "steering_angle": {"low": -MAX_STEERING_DEG, "high": MAX_STEERING_DEG},
-            "speed": {"low": 0.1, "high": limits.max_command_speed},
+            "speed": {"low": SPEED_RANGE_MPS[0], "high": limits.max_command_speed},
         }
         meta.write_text(json.dumps({"action_space": space, "action_space_type": "continuous"}))
         config = EnvConfig(
@@ -272,20 +322,7 @@ def drive_line(
             randomization={"random_start": False},
             time_limit_steps=int(max_seconds * CONTROL_HZ),
         )
-        env = RacerEnv(config=config)
-        try:
-            pace = np.ones(len(line.points))
-            tries = 0
-            while True:
-                tries += 1
-                lap = _drive(env, LineFollower(line, limits, pace))
-                if lap.status == "lap_complete" or not len(lap.path) or tries == MAX_TRIES:
-                    break
-                pace[_stretch_before(line, lap.path[-1])] *= PACE_STEP
-            slowed = float(line.ds[pace < 1.0].sum())
-            return DrivenLap(lap.status, lap.lap_time, lap.progress, lap.path, float(pace.min()), slowed, tries)
-        finally:
-            env.close()
+        return RacerEnv(config=config)
 
 
 def _drive(env, follower: LineFollower) -> DrivenLap:  # noqa: ANN001 - a RacerEnv (imported lazily above)

@@ -220,15 +220,36 @@ def test_the_steering_time_constant_is_measured_from_the_car() -> None:
 
 def test_the_follower_drives_the_gazebo_cars_lagging_steering_round_its_limit() -> None:
     """Pure pursuit left the track with this car at any look-ahead; the predictive follower must finish the lap
-    within 5 % of the limit (measured: 1.03, with the bends where a try left the track slowed by up to 15 %)."""
+    within 6 % of the limit (measured: 1.039 at the first try, on an AMD EPYC; the lap is chaotic at the limit, and
+    an earlier follower that needed 5-10 tries here gave 1.03 on one machine and 1.075 or no lap on others)."""
     from sim.follower import drive_line
 
     car = load_car("deepracer-gazebo")
     lim = measure_limits(car)
     line = racing_line(load_track("reInvent2019_track"), lim)
     lap = drive_line("reInvent2019_track", line, lim, car)
-    assert lap.status == "lap_complete" and lap.pace >= 0.8  # some bends slowed, by 20 % at most
-    assert 0.95 < lap.lap_time / line.lap_time < 1.05
+    assert lap.status == "lap_complete" and lap.pace >= 0.85 and lap.tries <= 3
+    assert 0.95 < lap.lap_time / line.lap_time < 1.06
+
+
+@pytest.mark.parametrize(("track", "pace"), [("Oval_track", 1.0), ("Oval_track", 0.94), ("reInvent2019_track", 0.97)])
+def test_the_follower_keeps_the_gazebo_car_on_track_at_and_below_its_limit(track: str, pace: float) -> None:
+    """No retries: one lap at a uniform fraction of the profile. The earlier follower left Oval_track at 27 % at
+    every pace from 0.91 to 1.0 (it unwound the lagging wheels in the bend) and reInvent2019_track at 3 of 5 paces;
+    with the heading cost, the previous choice among the checked plans and braking at the lowest command, all ten
+    of those laps were completed."""
+    from sim.follower import LineFollower, _drive, follower_env
+
+    car = load_car("deepracer-gazebo")
+    lim = measure_limits(car)
+    line = racing_line(load_track(track), lim)
+    env = follower_env(track, lim, car)
+    try:
+        lap = _drive(env, LineFollower(line, lim, pace))
+    finally:
+        env.close()
+    assert lap.status == "lap_complete", f"left {track} at {lap.progress:.1f} %"
+    assert lap.lap_time / line.lap_time < 1.0 / pace + 0.08
 
 
 def test_the_follower_slows_only_the_stretch_before_where_a_try_left_and_accelerates_at_full_command(
@@ -238,6 +259,7 @@ def test_the_follower_slows_only_the_stretch_before_where_a_try_left_and_acceler
     profile ahead is faster than the car, the command is the car's top command, since the profile's acceleration
     was measured at full command (commanding the profile's speed, the Gazebo car lost 0.36 s in the first 2 m)."""
     from sim.follower import SLOW_AFTER_M, SLOW_BEFORE_M, LineFollower, _stretch_before
+    from sim.physics import SPEED_RANGE_MPS
 
     line = racing_line(load_track("reinvent_base"), limits)
     where = line.points[100]
@@ -249,3 +271,5 @@ def test_the_follower_slows_only_the_stretch_before_where_a_try_left_and_acceler
     assert follower._speed_command(0, 0.0, standing) == limits.max_command_speed  # the start: full command
     cruise = int(np.argmax(standing[:-1]))  # at the profile's top speed the command follows the profile
     assert follower._speed_command(cruise, float(standing[cruise]), standing) < limits.max_command_speed
+    # Where the profile ahead brakes below the car's speed, the command is the lowest, at which braking was measured.
+    assert follower._speed_command(cruise, float(standing[cruise]) + 0.5, standing) == SPEED_RANGE_MPS[0]
