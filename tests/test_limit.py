@@ -234,10 +234,10 @@ def test_the_follower_drives_the_gazebo_cars_lagging_steering_round_its_limit() 
 
 @pytest.mark.parametrize(("track", "pace"), [("Oval_track", 1.0), ("Oval_track", 0.94), ("reInvent2019_track", 0.97)])
 def test_the_follower_keeps_the_gazebo_car_on_track_at_and_below_its_limit(track: str, pace: float) -> None:
-    """No retries: one lap at a uniform fraction of the profile. The earlier follower left Oval_track at 27 % at
-    every pace from 0.91 to 1.0 (it unwound the lagging wheels in the bend) and reInvent2019_track at 3 of 5 paces;
-    with the heading cost, the previous choice among the checked plans and braking at the lowest command, all ten
-    of those laps were completed."""
+    """No retries: one lap at a uniform fraction of the profile. The earlier follower finished 1 of 10 such laps on
+    these two loops (paces 1.0 to 0.92; on Oval_track it left at 26-28 % at every pace, unwinding the lagging wheels
+    in the bend); with the heading cost, the previous choice among the checked plans and braking at the lowest
+    command, all ten (docs/racing.md)."""
     from sim.follower import LineFollower, _drive, follower_env
 
     car = load_car("deepracer-gazebo")
