@@ -19,12 +19,19 @@ import numpy as np
 
 from common.config import AugmentationConfig
 
-__all__ = ["augment_frame", "needs_color"]
+__all__ = ["augment_frame", "is_identity", "needs_color"]
 
 
 def needs_color(cfg: AugmentationConfig) -> bool:
     """Whether colour jitter may be applied, so the caller must render an RGB frame, not grayscale."""
     return cfg.color_prob > 0
+
+
+def is_identity(cfg: AugmentationConfig) -> bool:
+    """Whether :func:`augment_frame` can change nothing but the frame's conversion to gray (every probability 0, or
+    a translation of 0 pixels): the caller may then skip it. It draws nothing from the rng either way."""
+    translates = cfg.translate_prob > 0 and cfg.translate_max_px > 0
+    return not (cfg.color_prob > 0 or translates or cfg.shadow_prob > 0 or cfg.salt_pepper_prob > 0)
 
 
 def augment_frame(frame: np.ndarray, cfg: AugmentationConfig, rng: np.random.Generator) -> np.ndarray:

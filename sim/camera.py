@@ -384,6 +384,14 @@ class StereoGroundCamera:
         ``box_colors`` as in :meth:`GroundCamera.render`. DeepRacer's stereo observation is gray only."""
         if color:
             raise ValueError("STEREO_CAMERAS images are gray (DeepRacer converts both views to 'L')")
+        return cv2.merge(self.render_views(pose, boxes, box_colors))
+
+    def render_views(
+        self, pose: Pose, boxes: np.ndarray | None = None, box_colors: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The (left, right) views at ``pose``, each (H, W) gray uint8: views of one buffer that the next call
+        overwrites (copy or merge them to keep them). A caller that processes each view on its own (the env's
+        augmentations) merges once, at the end, instead of splitting an interleaved frame."""
         m, f, n = self._maps, self.frame, self._rows
         c, s = np.float32(math.cos(pose.yaw)), np.float32(math.sin(pose.yaw))
         tx, ty = np.float32(pose.x - f.x0), np.float32(f.y1 - pose.y)
@@ -402,7 +410,7 @@ class StereoGroundCamera:
             half = self.baseline_m / 2  # the cameras sit this far left and right of the rig's centre
             views = [(buf[0], half), (buf[1], -half)]
             _draw_views(views, self._mount, pose, _prepare_boxes(boxes, box_colors, gray=True))
-        return cv2.merge((buf[0], buf[1]))
+        return buf[0], buf[1]
 
 
 # --- boxes --------------------------------------------------------------------------------------------------

@@ -28,7 +28,7 @@ from common.config import FRAME_HEIGHT, FRAME_WIDTH, EnvConfig
 from common.errors import UserError
 from common.sensors import CAMERA_KEY, LIDAR_KEY, ObsSpec, lidar_from_ranges, observation_spec
 from common.simtrace import OBSTACLE_COLUMN
-from sim.augment import augment_frame, needs_color
+from sim.augment import augment_frame, is_identity, needs_color
 from sim.camera import CameraSpec, GroundCamera, MujocoCamera, StereoGroundCamera
 from sim.lidar import Lidar, scan_due
 from sim.objects import RaceObjects, WorldObject, as_boxes, reset_pose, start_pose
@@ -301,16 +301,20 @@ class RacerEnv(gym.Env):
         aug = self.config.randomization.augment
         boxes = as_boxes(self.objects) if self.objects else None
         if isinstance(self.camera, StereoGroundCamera):
-            frame = self.camera.render(pose, boxes=boxes, box_colors=self._box_colors)
-        else:
-            frame = self.camera.render(pose, color=needs_color(aug), boxes=boxes, box_colors=self._box_colors)
+            # Each view is lit and augmented on its own, contiguous, and the pair interleaved once at the end.
+            views = self.camera.render_views(pose, boxes=boxes, box_colors=self._box_colors)
+            seed = int(self.np_random.integers(2**63))
+            if self._gain is not None:
+                views = tuple(cv2.convertScaleAbs(v.astype(np.float32) * self._gain) for v in views)
+            if not is_identity(aug):
+                views = tuple(augment_frame(v, aug, np.random.default_rng(seed)) for v in views)
+            return cv2.merge(views)
+        frame = self.camera.render(pose, color=needs_color(aug), boxes=boxes, box_colors=self._box_colors)
         if self._gain is not None:
             gain = self._gain[..., None] if frame.ndim == 3 else self._gain
             frame = cv2.convertScaleAbs(frame.astype(np.float32) * gain)
-        if frame.ndim == 3 and frame.shape[2] == 2:
-            seed = int(self.np_random.integers(2**63))
-            views = [augment_frame(frame[..., k], aug, np.random.default_rng(seed)) for k in range(2)]
-            return np.stack(views, axis=2)
+        if frame.ndim == 2 and is_identity(aug):
+            return frame[..., None]  # a fresh array each step: nothing to copy
         return augment_frame(frame, aug, self.np_random)[..., None]
 
     def _info(self, result: StepResult, reward: float, status: str | None = None) -> dict:

@@ -7,6 +7,7 @@ compares against an env with the default configuration (only the random start is
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -394,3 +395,20 @@ def test_mujoco_camera_with_surface_randomization(randomization: dict) -> None:
         assert np.abs(frames[0].astype(int) - frames[1].astype(int)).mean() > 1
     finally:
         env.close()
+
+
+def test_stereo_views_get_one_augmentation_draw(tmp_path: Path) -> None:
+    """DeepRacer's stereo pair is one sensor: both views get the same noise pixels (one draw, applied to each view
+    on its own before the pair is interleaved)."""
+    from sim.bench import write_sensor_space
+
+    meta = str(write_sensor_space(tmp_path, ["STEREO_CAMERAS"]))
+    plain, _ = RacerEnv(track=TRACK, action_space=meta).reset(seed=3, options=PIN)
+    noisy_env = RacerEnv(track=TRACK, action_space=meta, randomization={"augment": {"salt_pepper_prob": 1.0}})
+    noisy, _ = noisy_env.reset(seed=3, options=PIN)
+    assert noisy.shape == plain.shape == (120, 160, 2) and noisy.dtype == np.uint8
+    assert (plain[..., 0] != plain[..., 1]).any()  # two cameras 6 cm apart
+    hit = (noisy != plain).any(axis=2)
+    assert hit.sum() > 100
+    np.testing.assert_array_equal(noisy[hit, 0], noisy[hit, 1])  # the same pixels, set to the same values
+    assert set(np.unique(noisy[hit])) <= {0, 255}
