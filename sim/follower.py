@@ -26,10 +26,10 @@ profile ahead is slower (the profile's acceleration and braking were measured at
 profile's speed a little ahead (the command acts on the next control period and the wheels need a moment), divided
 by the car's speed-per-command ratio (its wheels slip slightly).
 
-Measured on the bundled loops (docs/racing.md, ``racer limit``): the default car is driven within 3.3 % of its
-limit on each of the loops measured. The Gazebo car, driven at its limit, may still leave the track in one bend and
-not on a second try a little slower there: ``drive_line`` slows the stretch before the place where a try left the
-track and tries again (:data:`PACE_STEP`), so the rest of the lap keeps the profile's speeds.
+Measured on the 11 bundled loops (docs/racing.md, ``racer limit``): the default car is driven within 4.5 % of its
+limit on each; the Gazebo car finishes each, within 5 % on 8. Driven at its limit it may still leave the track in
+one bend and not on a second try a little slower there: ``drive_line`` slows the stretch before the place where a
+try left the track and tries again (:data:`PACE_STEP`), so the rest of the lap keeps the profile's speeds.
 """
 
 from __future__ import annotations
