@@ -69,6 +69,12 @@ class BenchRaceSettings:
     workers: int = 2
     eval_starts: int = 10
     """Evaluation start points (the track's direction only)."""
+    hyperparams: dict[str, Any] = field(default_factory=dict)
+    """A user's hyperparameters laid over :data:`RACE_HYPERPARAMS` (``--hyperparams F``: ``{"stack_size": 3}``)."""
+
+    def race_hyperparams(self) -> dict[str, Any]:
+        """What the seeds train with: :data:`RACE_HYPERPARAMS` and the user's keys over them."""
+        return {**RACE_HYPERPARAMS, **self.hyperparams}
 
 
 def reward_constants(car_limits: dict[str, Any]) -> dict[str, float]:
@@ -98,10 +104,10 @@ def reward_file(folder: Path, constants: dict[str, float]) -> Path:
     return path
 
 
-def _files(folder: Path) -> tuple[Path, Path]:
+def _files(folder: Path, hyperparams: dict[str, Any] | None = None) -> tuple[Path, Path]:
     space, hp = folder / "model_metadata.json", folder / "hyperparameters.json"
     space.write_text(json.dumps({"action_space": RACE_ACTIONS, "action_space_type": "discrete"}))
-    hp.write_text(json.dumps(RACE_HYPERPARAMS))
+    hp.write_text(json.dumps(RACE_HYPERPARAMS if hyperparams is None else hyperparams))
     return space, hp
 
 
@@ -185,7 +191,7 @@ def train_from_scratch(
 def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float, constants: dict[str, float]) -> dict[str, Any]:
     """One seed: ``racer train`` for the budget, then its figures."""
     with tempfile.TemporaryDirectory(prefix="racer-bench-race-") as tmp:
-        space, hp = _files(Path(tmp))
+        space, hp = _files(Path(tmp), settings.race_hyperparams())
         reward = str(reward_file(Path(tmp), constants))
         run, files = build_run(f"bench-race-s{seed}", settings.track, reward, str(space), str(hp), seed=seed)
     run = run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(settings.car)})})
@@ -235,7 +241,7 @@ def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> 
         "workers": settings.workers,
         "eval_starts": settings.eval_starts,
         "action_space": RACE_ACTIONS,
-        "hyperparams": RACE_HYPERPARAMS,
+        "hyperparams": settings.race_hyperparams(),
         "reward_constants": constants,
         "limit_s": limit_s,
         "computed_limit_s": limit["lap_time_s"],

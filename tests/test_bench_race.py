@@ -88,3 +88,35 @@ def test_the_bench_turns_racers_stability_knobs_on_and_keeps_deepracers_rates(tm
         defaults.beta_entropy,
     )
     assert OA_HYPERPARAMS == RACE_HYPERPARAMS
+
+
+def test_a_users_hyperparameters_are_laid_over_the_benchs(tmp_path) -> None:  # noqa: ANN001
+    """``--hyperparams F``: the user's keys win, the bench's others stay, and the seeds train with the merge."""
+    from common.hyperparams import load_hyperparameters
+    from racer.bench_race import RACE_HYPERPARAMS, BenchRaceSettings, _files
+
+    settings = BenchRaceSettings(hyperparams={"stack_size": 3, "target_kl": 0.02})
+    merged = settings.race_hyperparams()
+    assert merged == {**RACE_HYPERPARAMS, "stack_size": 3, "target_kl": 0.02}
+    _, path = _files(tmp_path, merged)
+    hp = load_hyperparameters(path)
+    assert hp.stack_size == 3 and hp.target_kl == 0.02 and hp.collapse_guard
+    assert BenchRaceSettings().race_hyperparams() == RACE_HYPERPARAMS
+
+
+def test_a_bad_hyperparameters_file_stops_the_bench_before_any_training(tmp_path) -> None:  # noqa: ANN001
+    """One line naming the file, the key and the value, and a non-zero exit, before the limit or a seed runs."""
+    import subprocess
+    import sys
+
+    bad = tmp_path / "hyperparameters.json"
+    bad.write_text('{"stack_size": 0}')
+    done = subprocess.run(
+        [sys.executable, "-m", "racer", "bench", "race", "--hyperparams", str(bad), "--minutes", "0.5"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode != 0
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and str(bad) in lines[0] and "stack_size" in lines[0] and "0" in lines[0], done.stderr

@@ -181,18 +181,28 @@ def race(
     seeds: Annotated[str, typer.Option(help="Comma-separated seeds; medians are over them.")] = "0,1,2",
     workers: Annotated[int, typer.Option(min=1, help="Rollout workers.")] = 2,
     eval_starts: Annotated[int, typer.Option(min=1, help="Evaluation start points (track direction).")] = 10,
+    hyperparams: Annotated[
+        Path | None, typer.Option("--hyperparams", help="hyperparameters.json whose keys override the bench's.")
+    ] = None,
     png: Annotated[Path | None, typer.Option("--png", help="Learning curves with the limit drawn.")] = None,
     json_out: JsonOut = None,
 ) -> None:
     """Learn to race from scratch (4 m/s actions, the racing reward example) and compare with racer limit."""
     from common.car_calibration import load_car
+    from common.hyperparams import HyperparametersError, load_hyperparameters
+    from common.jsonfile import read_json_object
     from racer.bench_race import BenchRaceSettings, bench_race, plot_race
     from sim.track import load_track
 
     seed_numbers = int_list(seeds, "--seeds")
-    load_car(car)  # a bad car or track fails now, not after the first seed's training
+    load_car(car)  # a bad car, track or hyperparameters file fails now, not after the first seed's training
     load_track(track)
-    result = bench_race(BenchRaceSettings(seed_numbers, minutes, track, car, workers, eval_starts), console)
+    overrides = {}
+    if hyperparams:
+        load_hyperparameters(hyperparams)
+        overrides = read_json_object(hyperparams, "hyperparameters file", HyperparametersError)
+    settings = BenchRaceSettings(seed_numbers, minutes, track, car, workers, eval_starts, overrides)
+    result = bench_race(settings, console)
     if png:
         plot_race(result, png)
     ratio = result["ratio_to_limit"]
