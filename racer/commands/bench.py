@@ -181,9 +181,7 @@ def race(
     seeds: Annotated[str, typer.Option(help="Comma-separated seeds; medians are over them.")] = "0,1,2",
     workers: Annotated[int, typer.Option(min=1, help="Rollout workers.")] = 2,
     eval_starts: Annotated[int, typer.Option(min=1, help="Evaluation start points (track direction).")] = 10,
-    hyperparams: Annotated[
-        Path | None, typer.Option("--hyperparams", help="hyperparameters.json whose keys override the bench's.")
-    ] = None,
+    hyperparams: Hyperparams = None,
     png: Annotated[Path | None, typer.Option("--png", help="Learning curves with the limit drawn.")] = None,
     json_out: JsonOut = None,
 ) -> None:
