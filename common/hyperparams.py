@@ -55,6 +55,7 @@ STABILITY_KEYS: tuple[str, ...] = (
     "collapse_drop",
     "collapse_patience",
     "collapse_lr_factor",
+    "collapse_slowdown",
 )
 """racer's stability knobs (README, "Stability knobs"): each off by default, which is DeepRacer's behaviour."""
 RACER_KEYS: tuple[str, ...] = ("clip_epsilon", "gae_lambda", "value_loss_coef", "max_grad_norm", *STABILITY_KEYS)
@@ -164,6 +165,10 @@ class Hyperparameters(BaseModel):
     """racer: consecutive collapsed evaluations (of checkpoints newer than the best) before rolling back."""
     collapse_lr_factor: float = Field(0.5, gt=0, le=1)
     """racer: each rollback multiplies the learning rate (and what the schedule gives later) by this."""
+    collapse_slowdown: float | None = Field(None, gt=0)
+    """racer: an evaluation whose mean lap is more than ``1 + collapse_slowdown`` times the best checkpoint's
+    also counts as collapsed (0.15: 15 % slower), so the guard also undoes a drift to slower laps, not only lost
+    completion; None = completion only."""
 
     @field_validator("*", mode="before")
     @classmethod

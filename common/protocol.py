@@ -368,6 +368,8 @@ class EvaluationSummary(_Message):
     completion_rate: float = Field(ge=0.0, le=1.0)
     mean_progress: float
     best_lap_s: float | None
+    mean_lap_s: float | None = None
+    """Mean of the completed laps (None if none); the collapse guard's ``collapse_slowdown`` compares it."""
     off_track: int = Field(ge=0)
     score: float
     best: bool

@@ -175,6 +175,8 @@ def test_unknown_key_is_a_typo(tmp_path: Path) -> None:
         ("collapse_patience", 0),
         ("collapse_lr_factor", 0),
         ("collapse_lr_factor", 2),
+        ("collapse_slowdown", 0),
+        ("collapse_slowdown", "fast"),
     ],
 )
 def test_bad_value_names_key_and_value(tmp_path: Path, key: str, value: object) -> None:
@@ -223,6 +225,7 @@ STABILITY_FILE = {
     "collapse_drop": 0.4,
     "collapse_patience": 3,
     "collapse_lr_factor": 0.25,
+    "collapse_slowdown": 0.2,
 }
 
 

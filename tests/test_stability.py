@@ -22,7 +22,7 @@ from model_store import RunStore, open_store
 from model_store.runs import METRICS_FILE
 from tests.test_training_loop import fill, start
 from trainer.evaluator import evaluation_summary, save_evaluation, score
-from trainer.process import CollapseWatch, Stability, Trainer, TrainerOptions, is_collapsed
+from trainer.process import CollapseWatch, Stability, Trainer, TrainerOptions, is_collapsed, is_slower
 
 # --- the rule ------------------------------------------------------------------------------------------------
 
@@ -64,6 +64,34 @@ def test_watch_ignores_versions_before_the_floor_and_older_than_the_best() -> No
     assert watch.observe(_e(10, 0.0), (4, 1.0))
 
 
+def test_is_slower_by_hand() -> None:
+    # best mean lap 8 s, slowdown 0.15: slower beyond 9.2 s
+    assert is_slower(9.3, 8.0, 0.15) and not is_slower(9.2, 8.0, 0.15) and not is_slower(7.0, 8.0, 0.15)
+    # off, or no lap to compare: never
+    assert not is_slower(30.0, 8.0, None) and not is_slower(None, 8.0, 0.15) and not is_slower(9.3, None, 0.15)
+
+
+def test_watch_with_slowdown_rolls_back_a_drift_to_slower_laps() -> None:
+    def e(version: int, completion: float, lap: float | None) -> dict:
+        return {"version": version, "completion_rate": completion, "mean_lap_s": lap}
+
+    best = (5, 1.0, 7.0)  # slower beyond 7 * 1.15 = 8.05 s
+    watch = CollapseWatch(min_best=0.9, drop=0.5, patience=2, slowdown=0.15)
+    assert not watch.observe(e(6, 1.0, 8.3), best)  # one slower evaluation: maybe noise
+    assert not watch.observe(e(7, 1.0, 7.9), best)  # within 15 %: ends the streak
+    assert not watch.observe(e(8, 1.0, 8.3), best)
+    assert watch.observe(e(9, 0.9, 8.6), best)  # two slower in a row
+    assert [x["version"] for x in watch.streak] == [8, 9]
+    # A lost completion still counts, with or without laps; a best below min_best has no pace to hold.
+    watch = CollapseWatch(min_best=0.9, drop=0.5, patience=1, slowdown=0.15)
+    assert watch.observe(e(10, 0.0, None), best)
+    assert not watch.observe(e(11, 0.8, 30.0), (5, 0.8, 7.0))
+    # Without slowdown (the default), the same drift is not a collapse; a best without a lap time neither.
+    watch = CollapseWatch(min_best=0.9, drop=0.5, patience=1)
+    assert not watch.observe(e(12, 1.0, 30.0), best)
+    assert not CollapseWatch(0.9, 0.5, 1, slowdown=0.15).observe(e(13, 1.0, 30.0), (5, 1.0))
+
+
 def test_stability_state_from_checkpoint_metadata() -> None:
     assert Stability.from_meta({}) == Stability()  # a checkpoint from before the guard
     saved = {"lr_scale": 0.25, "collapses": 3, "rollbacks": 2, "floor": 17}
@@ -90,10 +118,13 @@ HP = {
 }
 
 
-def evaluated(runs: RunStore, r: redis.Redis, run_id: str, version: int, completion: float) -> None:
+def evaluated(
+    runs: RunStore, r: redis.Redis, run_id: str, version: int, completion: float, lap: float | None = None
+) -> None:
     """A robust evaluation of ``version`` completing ``completion`` of 12 trials, stored and reported as the
-    evaluator does (``run_evaluator`` after ``evaluate_checkpoint``)."""
-    laps = [20.0] * round(12 * completion)
+    evaluator does (``run_evaluator`` after ``evaluate_checkpoint``). Without ``lap`` the record is one from
+    before evaluations had a ``mean_lap_s`` (its laps 20 s each); with it, every lap takes ``lap`` seconds."""
+    laps = [lap or 20.0] * round(12 * completion)
     progress = 100.0 * completion
     record = {
         "run_id": run_id,
@@ -106,6 +137,8 @@ def evaluated(runs: RunStore, r: redis.Redis, run_id: str, version: int, complet
         "score": score(completion, progress, laps),
         "trials": [],
     }
+    if lap is not None:
+        record["lap_times_s"], record["mean_lap_s"] = laps, (lap if laps else None)
     moved = save_evaluation(runs, record)
     Bus(r, run_id).report_evaluation(evaluation_summary(record, moved))
 
@@ -193,3 +226,30 @@ def test_a_collapse_rolls_back_to_the_best_weights_and_optimizer_at_a_lower_lr(
     assert again.stability == Stability(lr_scale=0.5, collapses=1, rollbacks=1, floor=4)
     assert again.learning_rate() == pytest.approx(0.001 * (1 - 0.5) * 0.5)  # k = 4: the schedule's end, halved
     assert again.guard() is False  # the evaluations of v2 and v3 are below the floor
+
+
+def test_a_drift_to_slower_laps_rolls_back_with_collapse_slowdown(redis_url, run_id, tmp_path, caplog) -> None:
+    hp = tmp_path / "hyperparameters.json"
+    hp.write_text(json.dumps(HP | {"collapse_min_best": 0.9, "collapse_slowdown": 0.15}))
+    store = str(tmp_path / "store")
+    trainer, worker = start(run_id, redis_url, store, str(hp))
+    r, runs = redis.Redis.from_url(redis_url), RunStore(open_store(store))
+    for _ in range(3):  # versions 1, 2, 3
+        fill(trainer, worker)
+        trainer.train()
+        worker.poll_policy()
+    evaluated(runs, r, run_id, 1, 1.0, lap=8.0)  # the best: every trial a lap, 8 s each
+    evaluated(runs, r, run_id, 2, 1.0, lap=9.5)  # all laps still, but more than 8 * 1.15 = 9.2 s
+    assert runs.pointer(run_id, "best")["version"] == 1
+    assert trainer.guard() is False  # one slow evaluation could be noise
+    evaluated(runs, r, run_id, 3, 1.0, lap=9.4)
+    with caplog.at_level(logging.WARNING, logger="racer.trainer"):
+        assert trainer.guard() is True
+    assert trainer.version == 4 and trainer.stability == Stability(lr_scale=0.5, collapses=1, rollbacks=1, floor=4)
+    best_model, _ = checkpoint_from_bytes(runs.load_checkpoint(run_id, 1)[0])
+    assert _same(trainer.model.state_dict(), best_model)
+    lines = [rec.getMessage() for rec in caplog.records if "collapse guard" in rec.getMessage()]
+    assert len(lines) == 1
+    assert "v2, v3 completed 1.00, 1.00 of their evaluation trials against best v1's 1.00" in lines[0]
+    assert "mean laps 9.50, 9.40 s against its 8.00 s (slower than 9.20 s)" in lines[0]
+    worker.close()

@@ -99,6 +99,7 @@ def summarize(trials: list[Trial]) -> dict:
         "mean_progress": progress,
         "lap_times_s": laps,
         "best_lap_s": min(laps) if laps else None,
+        "mean_lap_s": statistics.fmean(laps) if laps else None,
         "off_track": sum(t.status == "off_track" for t in trials),
         "crashed": sum(t.status == "crashed" for t in trials),
         "resets": sum(t.resets for t in trials),
@@ -369,7 +370,8 @@ def run_evaluator(opts: EvaluatorOptions, stop: threading.Event | None = None) -
 def evaluation_summary(record: dict, moved: bool) -> EvaluationSummary:
     """What the evaluator reports on the bus of an evaluation ``record``; ``moved``: it became the best."""
     fields = set(EvaluationSummary.model_fields) - {"best"}
-    return EvaluationSummary.model_validate({**{k: record[k] for k in fields}, "best": moved})
+    # A record from before a field was added (``mean_lap_s``) leaves it at its default.
+    return EvaluationSummary.model_validate({**{k: record[k] for k in fields if k in record}, "best": moved})
 
 
 def _save_simtrace(runs: RunStore, run_id: str, recorder: SimTraceRecorder, created: float) -> None:

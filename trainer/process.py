@@ -24,6 +24,7 @@ import time
 from collections import deque
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import torch
 
@@ -143,6 +144,31 @@ def is_collapsed(completion: float, best_completion: float, min_best: float, dro
     return best_completion >= min_best and completion <= best_completion * (1.0 - drop)
 
 
+def is_slower(mean_lap_s: float | None, best_mean_lap_s: float | None, slowdown: float | None) -> bool:
+    """True when an evaluation's mean lap is more than ``1 + slowdown`` times the best checkpoint's (never when
+    ``slowdown`` is None or either evaluation finished no lap)."""
+    if slowdown is None or mean_lap_s is None or best_mean_lap_s is None:
+        return False
+    return mean_lap_s > best_mean_lap_s * (1.0 + slowdown)
+
+
+def _mean_lap(record: dict) -> float | None:
+    """An evaluation record's mean lap, s: its ``mean_lap_s``, or from its ``lap_times_s`` (records from before
+    the evaluator wrote ``mean_lap_s``); None when it has no lap."""
+    if record.get("mean_lap_s") is not None:
+        return float(record["mean_lap_s"])
+    laps = [float(lap) for lap in record.get("lap_times_s") or []]
+    return statistics.fmean(laps) if laps else None
+
+
+class BestEvaluation(NamedTuple):
+    """What the collapse guard compares new evaluations with: the ``best`` checkpoint's."""
+
+    version: int
+    completion: float
+    mean_lap_s: float | None = None
+
+
 @dataclass
 class CollapseWatch:
     """The collapse guard's memory: the evaluations it has looked at, and the current streak of collapsed ones.
@@ -156,6 +182,8 @@ class CollapseWatch:
     min_best: float
     drop: float
     patience: int
+    slowdown: float | None = None
+    """``collapse_slowdown``: an evaluation this much slower than the best (mean lap) counts too; None: never."""
     floor: int = 0
     seen: int = -1
     """Newest version looked at."""
@@ -168,19 +196,27 @@ class CollapseWatch:
             key=lambda e: e["version"],
         )
 
-    def observe(self, evaluation: dict, best: tuple[int, float] | None) -> bool:
-        """Look at one new summary (``version``, ``completion_rate``) given the best (version, completion), in
-        version order; True when it completes a streak of ``patience`` collapsed evaluations."""
+    def observe(self, evaluation: dict, best: tuple[int, float] | tuple[int, float, float | None] | None) -> bool:
+        """Look at one new summary (``version``, ``completion_rate``, optionally ``mean_lap_s``) given the best
+        (version, completion[, mean lap]), in version order; True when it completes a streak of ``patience``
+        collapsed evaluations."""
         version = evaluation["version"]
         if version <= self.seen or version < self.floor:
             return False
         self.seen = version
-        newer = best is not None and version > best[0]
-        if not (newer and is_collapsed(evaluation["completion_rate"], best[1], self.min_best, self.drop)):
+        if not (best is not None and version > best[0] and self.collapsed(evaluation, BestEvaluation(*best))):
             self.streak = []
             return False
         self.streak.append(evaluation)
         return len(self.streak) >= self.patience
+
+    def collapsed(self, evaluation: dict, best: BestEvaluation) -> bool:
+        """One evaluation against the best: lost completion (``is_collapsed``) or, once the best completes
+        ``min_best`` of its trials, a mean lap ``slowdown`` slower (``is_slower``)."""
+        if is_collapsed(evaluation["completion_rate"], best.completion, self.min_best, self.drop):
+            return True
+        slower = is_slower(evaluation.get("mean_lap_s"), best.mean_lap_s, self.slowdown)
+        return best.completion >= self.min_best and slower
 
     def restart(self, floor: int) -> None:
         """Forget the streak; from now on look only at versions from ``floor`` on."""
@@ -210,7 +246,9 @@ class Trainer:
         """(worker id, created) of the segments read last, to drop a second copy of one (see ``_accept``)."""
         self.metrics: list[dict] = []
         self.stability = Stability()
-        self.watch = CollapseWatch(self.hp.collapse_min_best, self.hp.collapse_drop, self.hp.collapse_patience)
+        self.watch = CollapseWatch(
+            self.hp.collapse_min_best, self.hp.collapse_drop, self.hp.collapse_patience, self.hp.collapse_slowdown
+        )
         self.tb = _summary_writer(opts.store, run.run_id) if opts.tensorboard else None
         self._workdir = tempfile.TemporaryDirectory(prefix="racer-trainer-")
 
@@ -502,25 +540,25 @@ class Trainer:
         summaries, _ = self.bus.evaluations(last=EVALUATION_WINDOW)
         return self.watch.fresh([s.model_dump() for s in summaries])
 
-    def _best_evaluation(self) -> tuple[int, float] | None:
-        """(version, completion rate) of the ``best`` checkpoint's evaluation, or None while there is none."""
+    def _best_evaluation(self) -> BestEvaluation | None:
+        """The ``best`` checkpoint's evaluation (version, completion rate, mean lap), or None while there is none."""
         pointer = self.runs.pointer(self.run.run_id, "best")
         if pointer is None:
             return None
         version = int(pointer["version"])
         try:
             record = json.loads(self.runs.read_file(self.run.run_id, evaluation_name(version)))
-            return version, float(record["completion_rate"])
+            return BestEvaluation(version, float(record["completion_rate"]), _mean_lap(record))
         except (StoreKeyError, KeyError, TypeError, ValueError):
             return None
 
-    def _roll_back(self, best: tuple[int, float], collapsed: list[dict]) -> bool:
+    def _roll_back(self, best: BestEvaluation, collapsed: list[dict]) -> bool:
         """Go back to the best checkpoint's weights and optimizer at a lower learning rate, as a new version.
 
         The buffer and later segments of older versions are dropped (``rolled_back``): they were acted by the
         collapsed policies. Returns False if the best checkpoint could not be read (counted as a collapse only).
         """
-        best_version, best_completion = best
+        best_version, best_completion, best_lap = best
         self.stability.collapses += 1
         try:
             payload, _ = self.store_outage.call(
@@ -552,13 +590,14 @@ class Trainer:
         self.store_outage.call("prune checkpoints", self._prune)
         log.warning(
             "collapse guard: v%s completed %s of their evaluation trials against best v%d's %.2f "
-            "(collapsed at <= %.2f); rolled back to v%d's weights and optimizer as v%d, learning rate %.3g -> %.3g "
+            "(collapsed at <= %.2f)%s; rolled back to v%d's weights and optimizer as v%d, learning rate %.3g -> %.3g "
             "(collapses %d, rollbacks %d)",
             ", v".join(str(e["version"]) for e in collapsed),
             ", ".join(f"{e['completion_rate']:.2f}" for e in collapsed),
             best_version,
             best_completion,
             best_completion * (1.0 - self.hp.collapse_drop),
+            self._slowdown_words(collapsed, best_lap),
             best_version,
             self.version,
             old_lr,
@@ -569,6 +608,15 @@ class Trainer:
         if self.tb is not None:
             self.tb.add_scalar("trainer/rollbacks", self.stability.rollbacks, self.stats.env_steps)
         return True
+
+    def _slowdown_words(self, collapsed: list[dict], best_lap: float | None) -> str:
+        """The mean laps of the collapsed evaluations against the best's, for the rollback's log line (when the
+        guard watches lap times)."""
+        if self.hp.collapse_slowdown is None or best_lap is None:
+            return ""
+        laps = ", ".join("-" if e.get("mean_lap_s") is None else f"{e['mean_lap_s']:.2f}" for e in collapsed)
+        limit = best_lap * (1.0 + self.hp.collapse_slowdown)
+        return f", mean laps {laps} s against its {best_lap:.2f} s (slower than {limit:.2f} s)"
 
     def _record(
         self, losses: dict, episodes: list[EpisodeSummary], lags: list[int], batch: PPOBatch, train_s: float
