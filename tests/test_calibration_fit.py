@@ -120,6 +120,10 @@ def test_calibration_names_and_measures_an_undeclared_effect(tmp_path, effect, v
     found = {e.name: e.params for e in result.calibration.effects}
     assert list(found) == [effect], f"found {found}"
     assert found[effect][param] == pytest.approx(value, rel=rtol)
+    # The report's rounds account for the result: what was chosen and not dropped since, at most.
+    rounds = result.report["selection"]
+    chosen = {r["chosen"] for r in rounds if r["chosen"]} - {name for r in rounds for name in r["dropped"]}
+    assert set(found) <= chosen
     stderr = result.calibration.effects[0].stderr[param]
     assert 0 < stderr < 0.5 * value  # an uncertainty is reported, and it is smaller than the value
     before, after = result.report["error_before"], result.report["error_after"]

@@ -11,7 +11,8 @@ The procedure (:func:`calibrate`):
    the result on the selection windows. The best candidate is kept if it cuts the held-out cost by more than
    :data:`PENALTY_PER_PARAM` of what is left per parameter it adds and its value is significant (more than
    :data:`MIN_Z` standard errors from the value that does nothing); otherwise selection stops. After each
-   addition, all chosen effects are refitted together.
+   addition, all chosen effects are refitted together, and one that the joint refit leaves within
+   :data:`MIN_Z` joint standard errors of doing nothing is dropped and not tried again.
 4. Backward check: a chosen effect that no longer pays its penalty once the others were refitted is dropped.
 5. Report the chosen effects with standard errors (cluster-robust by episode: windows of one episode are not
    independent) and the error before and after on the report windows, broken down by condition.
@@ -277,6 +278,8 @@ class Round:
     candidates: list[dict]
     chosen: str | None
     cost_before: float
+    dropped: list[str] = field(default_factory=list)
+    """Chosen effects (this round's or earlier) the joint refit left insignificant, dropped after the round."""
 
 
 def select_effects(
@@ -343,7 +346,9 @@ def select_effects(
         if joint_cost < current_cost:
             current, current_cost = joint.calibration, joint_cost
         progress(f"chose {best['name']}: held-out cost {current_cost:.3f}")
+        before = list(chosen)
         current, current_cost = _drop_insignificant(fit_obj, sel_obj, current, chosen, progress, base)
+        rounds[-1].dropped = [name for name in before if name not in chosen]
     current, current_cost = _prune(current, current_cost, sel_obj, progress, base)
     return with_stderr(fit_obj, current, base), rounds
 
@@ -586,7 +591,13 @@ def calibrate(
             "fit_on": sources(parts["fit"]),
             "selected_on": sources(parts["select"]),
             "selection": [
-                {"cost_before": round(r.cost_before, 5), "chosen": r.chosen, "candidates": r.candidates} for r in rounds
+                {
+                    "cost_before": round(r.cost_before, 5),
+                    "chosen": r.chosen,
+                    "dropped": r.dropped,
+                    "candidates": r.candidates,
+                }
+                for r in rounds
             ],
             "windows_fit": len(fit_w),
             "windows_selected_on": len(sel_w),
