@@ -146,11 +146,9 @@ def run_seed(settings: BenchOASettings, seed: int) -> dict[str, Any]:
         run_id = f"bench-oa-{race.race_type.value.lower().replace('_', '-')}-s{seed}"
         reward = str(example_path(OA_REWARD))
         run, files = build_run(run_id, settings.track, reward, str(space), str(hp), seed=seed, race=race)
-    curve, rollbacks = train_from_scratch(
-        run, files, settings.workers, settings.minutes, settings.eval_trials, oa_curve
-    )
+    curve, guard = train_from_scratch(run, files, settings.workers, settings.minutes, settings.eval_trials, oa_curve)
     figures = seed_figures(curve, min(MIN_TRIALS, settings.eval_trials))
-    figures.update(seed=seed, rollbacks=rollbacks, curve=curve)
+    figures.update(seed=seed, rollbacks=guard["rollbacks"], curve=curve)
     return figures
 
 

@@ -10,7 +10,8 @@ round the lap, in the track's direction as a DeepRacer race is driven, with 10 %
 * ``limit_s`` and ``ratio_to_limit``: ``racer limit`` for the same car, track and action space (its
   ``best_known_lap_s``: the computed limit, or the controller's driven lap where that beat it);
 * ``collapses``: checkpoints after the first robust one whose completion fell below 50 %, and
-  ``collapses_recovered`` those followed later by a robust checkpoint; ``rollbacks``: the collapse guard's;
+  ``collapses_recovered`` those followed later by a robust checkpoint; ``rollbacks``: the collapse guard's, and
+  ``slow_rollbacks``: those of them its ``collapse_slowdown`` started;
 * ``final_completion``: the completion of the last evaluated checkpoint (0-1).
 
 The reward example's constants are set to the car, as its header asks a user to do (``reward_constants``: from the
@@ -165,10 +166,11 @@ def train_from_scratch(
     minutes: float,
     eval_episodes: int,
     read_curve: Callable[[str, RunStore, float], list[dict]],
-) -> tuple[list[dict], int]:
+) -> tuple[list[dict], dict[str, int]]:
     """``racer train`` (embedded Redis, the evaluator beside the trainer evaluating every checkpoint from
     ``eval_episodes`` starts in the track's direction) for ``minutes`` in a throwaway store; then ``read_curve(run_id,
-    runs, t0)`` of the stored run and the collapse guard's rollbacks. ``racer bench race`` and ``bench oa`` share it."""
+    runs, t0)`` of the stored run and the collapse guard's ``rollbacks`` and ``slow_rollbacks`` (those its
+    ``collapse_slowdown`` started). ``racer bench race`` and ``bench oa`` share it."""
     with EmbeddedRedis() as server, tempfile.TemporaryDirectory(prefix="racer-bench-") as tmp:
         opts = TrainOptions(
             workers,
@@ -185,7 +187,8 @@ def train_from_scratch(
         runs = RunStore(LocalStore(Path(tmp, "store")))
         curve = read_curve(run.run_id, runs, t0)
         rows = runs.read_metrics(run.run_id, missing_ok=True)
-    return curve, int(rows[-1].get("rollbacks", 0)) if rows else 0
+    last = rows[-1] if rows else {}
+    return curve, {key: int(last.get(key, 0)) for key in ("rollbacks", "slow_rollbacks")}
 
 
 def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float, constants: dict[str, float]) -> dict[str, Any]:
@@ -195,11 +198,9 @@ def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float, constants: 
         reward = str(reward_file(Path(tmp), constants))
         run, files = build_run(f"bench-race-s{seed}", settings.track, reward, str(space), str(hp), seed=seed)
     run = run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(settings.car)})})
-    curve, rollbacks = train_from_scratch(
-        run, files, settings.workers, settings.minutes, settings.eval_starts, race_curve
-    )
+    curve, guard = train_from_scratch(run, files, settings.workers, settings.minutes, settings.eval_starts, race_curve)
     figures = seed_figures(curve, limit_s)
-    figures.update(seed=seed, rollbacks=rollbacks, curve=curve)
+    figures.update(seed=seed, **guard, curve=curve)
     return figures
 
 

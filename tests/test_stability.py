@@ -94,8 +94,8 @@ def test_watch_with_slowdown_rolls_back_a_drift_to_slower_laps() -> None:
 
 def test_stability_state_from_checkpoint_metadata() -> None:
     assert Stability.from_meta({}) == Stability()  # a checkpoint from before the guard
-    saved = {"lr_scale": 0.25, "collapses": 3, "rollbacks": 2, "floor": 17}
-    assert Stability.from_meta({"stability": saved}) == Stability(0.25, 3, 2, 17)
+    saved = {"lr_scale": 0.25, "collapses": 3, "rollbacks": 2, "floor": 17, "slow_rollbacks": 1}
+    assert Stability.from_meta({"stability": saved}) == Stability(0.25, 3, 2, 17, 1)
 
 
 # --- the trainer, with a real Redis and store ----------------------------------------------------------------
@@ -245,7 +245,8 @@ def test_a_drift_to_slower_laps_rolls_back_with_collapse_slowdown(redis_url, run
     evaluated(runs, r, run_id, 3, 1.0, lap=9.4)
     with caplog.at_level(logging.WARNING, logger="racer.trainer"):
         assert trainer.guard() is True
-    assert trainer.version == 4 and trainer.stability == Stability(lr_scale=0.5, collapses=1, rollbacks=1, floor=4)
+    assert trainer.stability == Stability(lr_scale=0.5, collapses=1, rollbacks=1, floor=4, slow_rollbacks=1)
+    assert trainer.version == 4
     best_model, _ = checkpoint_from_bytes(runs.load_checkpoint(run_id, 1)[0])
     assert _same(trainer.model.state_dict(), best_model)
     lines = [rec.getMessage() for rec in caplog.records if "collapse guard" in rec.getMessage()]

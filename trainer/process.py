@@ -121,6 +121,9 @@ class Stability:
     floor: int = 0
     """First version of the current lineage (the version a rollback published): evaluations and segments of older
     versions belong to the abandoned policies and are ignored."""
+    slow_rollbacks: int = 0
+    """Rollbacks whose streak held an evaluation collapsed by its pace alone (``collapse_slowdown``), not by its
+    completion: so a run's figures say which rule acted."""
 
     @classmethod
     def from_meta(cls, meta: dict) -> Stability:
@@ -131,6 +134,7 @@ class Stability:
             collapses=int(saved.get("collapses", 0)),
             rollbacks=int(saved.get("rollbacks", 0)),
             floor=int(saved.get("floor", 0)),
+            slow_rollbacks=int(saved.get("slow_rollbacks", 0)),
         )
 
 
@@ -578,6 +582,8 @@ class Trainer:
         self._load_state(payload, optimizer, best_version)
         self.stability.lr_scale *= self.hp.collapse_lr_factor
         self.stability.rollbacks += 1
+        if any(not self._lost_completion(e, best_completion) for e in collapsed):
+            self.stability.slow_rollbacks += 1
         for _ in self.buffer:
             self.stats.drop("rolled_back")
         self.buffer = []
@@ -608,6 +614,11 @@ class Trainer:
         if self.tb is not None:
             self.tb.add_scalar("trainer/rollbacks", self.stability.rollbacks, self.stats.env_steps)
         return True
+
+    def _lost_completion(self, evaluation: dict, best_completion: float) -> bool:
+        """The evaluation collapsed by its completion (``is_collapsed``), whatever its pace."""
+        hp = self.hp
+        return is_collapsed(evaluation["completion_rate"], best_completion, hp.collapse_min_best, hp.collapse_drop)
 
     def _slowdown_words(self, collapsed: list[dict], best_lap: float | None) -> str:
         """The mean laps of the collapsed evaluations against the best's, for the rollback's log line (when the
@@ -642,6 +653,7 @@ class Trainer:
             "dropped": dict(self.stats.dropped),
             "collapses": self.stability.collapses,
             "rollbacks": self.stability.rollbacks,
+            "slow_rollbacks": self.stability.slow_rollbacks,
             "time": time.time(),
             **{k: float(v) for k, v in losses.items()},
         }
@@ -699,6 +711,7 @@ class Trainer:
             "outages": {"redis": self.redis_outage.outages, "store": self.store_outage.outages},
             "collapses": self.stability.collapses,
             "rollbacks": self.stability.rollbacks,
+            "slow_rollbacks": self.stability.slow_rollbacks,
             "precision": self.precision,
             "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             "time": time.time(),
