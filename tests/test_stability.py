@@ -20,6 +20,7 @@ from common.policy import checkpoint_from_bytes, state_dict_from_bytes
 from common.protocol import PolicyVersion
 from model_store import RunStore, open_store
 from model_store.runs import METRICS_FILE
+from rollout_worker.worker import RolloutWorker
 from tests.test_training_loop import fill, start
 from trainer.evaluator import evaluation_summary, save_evaluation, score
 from trainer.process import CollapseWatch, Stability, Trainer, TrainerOptions, is_collapsed, is_slower
@@ -143,6 +144,22 @@ def evaluated(
     Bus(r, run_id).report_evaluation(evaluation_summary(record, moved))
 
 
+def three_versions(
+    run_id: str, redis_url: str, tmp_path, hp: dict
+) -> tuple[Trainer, RolloutWorker, redis.Redis, RunStore]:
+    """A trainer with hyperparameters ``hp`` and a worker, after three policy updates (versions 1, 2, 3) the worker
+    has polled; with a Redis client and the run store."""
+    path = tmp_path / "hyperparameters.json"
+    path.write_text(json.dumps(hp))
+    store = str(tmp_path / "store")
+    trainer, worker = start(run_id, redis_url, store, str(path))
+    for _ in range(3):
+        fill(trainer, worker)
+        trainer.train()
+        worker.poll_policy()
+    return trainer, worker, redis.Redis.from_url(redis_url), RunStore(open_store(store))
+
+
 def _same(a: dict, b: dict) -> bool:
     return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
 
@@ -150,15 +167,7 @@ def _same(a: dict, b: dict) -> bool:
 def test_a_collapse_rolls_back_to_the_best_weights_and_optimizer_at_a_lower_lr(
     redis_url, run_id, tmp_path, caplog
 ) -> None:
-    hp = tmp_path / "hyperparameters.json"
-    hp.write_text(json.dumps(HP))
-    store = str(tmp_path / "store")
-    trainer, worker = start(run_id, redis_url, store, str(hp))
-    r, runs = redis.Redis.from_url(redis_url), RunStore(open_store(store))
-    for _ in range(3):  # versions 1, 2, 3
-        fill(trainer, worker)
-        trainer.train()
-        worker.poll_policy()
+    trainer, worker, r, runs = three_versions(run_id, redis_url, tmp_path, HP)
     assert worker.policy_version == 3
 
     # The schedules, by hand: lr 0.001 → 0.0005 and beta 0.01 → 0 over 4 updates (updates k = 0, 1, 2).
@@ -221,7 +230,7 @@ def test_a_collapse_rolls_back_to_the_best_weights_and_optimizer_at_a_lower_lr(
     worker.close()
 
     # A resumed trainer keeps the lower learning rate, the counters and the floor.
-    again = Trainer(trainer.run, TrainerOptions(redis_url, store, resume=True, tensorboard=False))
+    again = Trainer(trainer.run, TrainerOptions(redis_url, str(tmp_path / "store"), resume=True, tensorboard=False))
     again.start()
     assert again.stability == Stability(lr_scale=0.5, collapses=1, rollbacks=1, floor=4)
     assert again.learning_rate() == pytest.approx(0.001 * (1 - 0.5) * 0.5)  # k = 4: the schedule's end, halved
@@ -229,15 +238,9 @@ def test_a_collapse_rolls_back_to_the_best_weights_and_optimizer_at_a_lower_lr(
 
 
 def test_a_drift_to_slower_laps_rolls_back_with_collapse_slowdown(redis_url, run_id, tmp_path, caplog) -> None:
-    hp = tmp_path / "hyperparameters.json"
-    hp.write_text(json.dumps(HP | {"collapse_min_best": 0.9, "collapse_slowdown": 0.15}))
-    store = str(tmp_path / "store")
-    trainer, worker = start(run_id, redis_url, store, str(hp))
-    r, runs = redis.Redis.from_url(redis_url), RunStore(open_store(store))
-    for _ in range(3):  # versions 1, 2, 3
-        fill(trainer, worker)
-        trainer.train()
-        worker.poll_policy()
+    trainer, worker, r, runs = three_versions(
+        run_id, redis_url, tmp_path, HP | {"collapse_min_best": 0.9, "collapse_slowdown": 0.15}
+    )
     evaluated(runs, r, run_id, 1, 1.0, lap=8.0)  # the best: every trial a lap, 8 s each
     evaluated(runs, r, run_id, 2, 1.0, lap=9.5)  # all laps still, but more than 8 * 1.15 = 9.2 s
     assert runs.pointer(run_id, "best")["version"] == 1
