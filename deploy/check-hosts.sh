@@ -16,7 +16,7 @@
 # in the proxies: this kernel has no netem), then worker host 1 cut off for 20 s while it is sending a segment
 # (--cut link: its interface down; --cut drop: every packet dropped, silently, on both sides) and healed. deploy/hosts_probe.py samples Redis and the
 # links' byte counters all along and checks: training went on through the cut, the cut worker pushed segments again
-# within 10 s of the heal and caught up with the current policy, every segment sent was counted once (accepted or
+# within 10 s of the heal and caught up with the policy that was current at the heal, every segment sent was counted once (accepted or
 # dropped by reason; a second copy of a half-sent push that TCP delivers after the heal is dropped as `duplicate`),
 # none in part, and the cut worker's log says it was retrying (with --cut drop too: redis-py retries once, then the
 # error reaches racer's Outage, which backs off and logs). Each run takes about 3 minutes (RACER_HOSTS_PHASE_S shortens the two 30 s windows). Exits 0 only if every check held; the figures

@@ -155,7 +155,8 @@ def accounting(row: dict) -> tuple[int, int, int]:
 
 def cut_figures(rows: list[dict], worker: str, cut: float, heal: float) -> dict:
     """What the cut worker did around the cut: its segment count when cut, and how long after the heal it pushed a
-    segment again and acted with the trainer's current policy (None: not seen)."""
+    segment again and pushed one acting with the policy that was the trainer's at the heal, or newer (None: not
+    seen)."""
     before = [r["workers"][worker]["segments"] for r in rows if r["t"] < heal and worker in r["workers"]]
     at_cut = max(before) if before else None
     back = next(
@@ -169,14 +170,19 @@ def cut_figures(rows: list[dict], worker: str, cut: float, heal: float) -> dict:
         ),
         None,
     )
+    # The policy current at the heal, not at each later sample: with a 23 MB checkpoint and an update every few
+    # seconds, "as new as the trainer's latest" is a race the worker can lose for minutes on a shaped link while
+    # still having caught up on everything it missed during the cut.
+    at_heal = [r["trainer"]["policy_version"] for r in rows if r["t"] <= heal and r["trainer"]]
+    wanted = max(at_heal) if at_heal else None
     current = next(
         (
             r["t"]
             for r in rows
             if r["t"] >= heal
             and worker in r["workers"]
-            and r["trainer"]
-            and r["workers"][worker]["policy_version"] >= r["trainer"]["policy_version"]
+            and wanted is not None
+            and r["workers"][worker]["policy_version"] >= wanted
             and r["workers"][worker]["segments"] > (at_cut or 0)
         ),
         None,
@@ -204,7 +210,7 @@ def wait(args: argparse.Namespace) -> int:
 def done(args: argparse.Namespace, rows: list[dict], last: dict, workers: list[str]) -> bool:
     if args.state == "ready":  # trainer up, a first update done, every worker sending
         return bool(last["trainer"]) and (last["policy"] or 0) >= 1 and all(w in last["workers"] for w in workers)
-    if args.state == "recovered":  # the cut worker pushes again, with the current policy
+    if args.state == "recovered":  # the cut worker pushes again, with the policy current at the heal
         ev = events(args.events)
         f = cut_figures(rows, workers[0], ev["cut"], ev["heal"])
         return f["recovery_s"] is not None and f["current_policy_s"] is not None
@@ -278,7 +284,9 @@ def report(args: argparse.Namespace) -> int:
             cut["recovery_s"] is not None and cut["recovery_s"] <= args.recovery_limit,
         )
     )
-    checks.append(("the cut worker acts with the current policy again", cut["current_policy_s"] is not None))
+    checks.append(
+        ("the cut worker acts with the policy current at the heal (or newer)", cut["current_policy_s"] is not None)
+    )
 
     final = rows[-1]
     last_beats: dict[str, int] = {}

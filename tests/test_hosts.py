@@ -141,3 +141,29 @@ def test_delay_proxy_delays_each_direction_and_keeps_the_bytes_in_order():
         proxy.terminate()
         proxy.wait(10)
         server.close()
+
+
+def _sample(t: float, trainer_version: int, worker_version: int, segments: int) -> dict:
+    return {
+        "t": t,
+        "trainer": {"policy_version": trainer_version},
+        "workers": {"w1": {"policy_version": worker_version, "segments": segments}},
+    }
+
+
+def test_cut_figures_wants_the_policy_current_at_the_heal_not_the_trainers_latest():
+    """A worker that caught up with the version published before the heal has recovered, even if the trainer has
+    published again since (with a 23 MB checkpoint on a shaped link it may stay one behind for minutes)."""
+    from deploy.hosts_probe import cut_figures
+
+    rows = [
+        _sample(0.0, 3, 3, 10),  # cut at t=1
+        _sample(5.0, 5, 3, 10),  # heal at t=6, trainer at 5
+        _sample(8.0, 6, 3, 11),  # pushes again, still acting with 3
+        _sample(12.0, 8, 5, 12),  # acts with 5, the policy at the heal; the trainer is at 8
+    ]
+    f = cut_figures(rows, "w1", cut=1.0, heal=6.0)
+    assert f["segments_at_cut"] == 10
+    assert f["recovery_s"] == pytest.approx(2.0)
+    assert f["current_policy_s"] == pytest.approx(6.0)
+    assert cut_figures(rows[:3], "w1", cut=1.0, heal=6.0)["current_policy_s"] is None
