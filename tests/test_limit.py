@@ -275,3 +275,19 @@ def test_the_follower_slows_only_the_stretch_before_where_a_try_left_and_acceler
     assert follower._speed_command(cruise, float(standing[cruise]), standing) < limits.max_command_speed
     # Where the profile ahead brakes below the car's speed, the command is the lowest, at which braking was measured.
     assert follower._speed_command(cruise, float(standing[cruise]) + 0.5, standing) == SPEED_RANGE_MPS[0]
+
+
+def test_the_followers_k_d_tree_finds_the_same_costs_as_all_pairs(limits: CarLimits) -> None:
+    """A plan's thousands of points are matched to the line with a k-d tree; the cost must be the all-pairs one."""
+    from sim.follower import KD_TREE_MIN_POINTS, LineFollower
+
+    line = racing_line(load_track("reinvent_base"), limits)
+    follower = LineFollower(line, limits)
+    rng = np.random.default_rng(0)
+    near = 40
+    points = line.points[near : near + 30].repeat(20, axis=0) + rng.normal(0, 0.15, (600, 2))
+    yaw = rng.uniform(-math.pi, math.pi, len(points))
+    assert len(points) > KD_TREE_MIN_POINTS
+    tree = follower._cost(points, near, 200, yaw)
+    pairs = np.concatenate([follower._cost(points[i : i + 50], near, 200, yaw[i : i + 50]) for i in range(0, 600, 50)])
+    np.testing.assert_allclose(tree, pairs, rtol=1e-12, atol=1e-15)
