@@ -109,9 +109,8 @@ def _lag(u: np.ndarray, y0: float, tau_s: float, substep_s: float) -> np.ndarray
 
         y, _ = lfilter([1 - a], [1, -a], u, zi=[a * y0])
         return y
-    # A plain loop for the env's control period (8 substeps), where lfilter's call overhead (about 18 us) was 14 %
-    # of the physics steps in a profiled Gazebo racer limit. Same operations in the same order as lfilter's direct
-    # form: the same floats.
+    # A plain loop for the env's control period (8 substeps): 1.3 us a call against lfilter's 5.7 us (timeit), about
+    # 2 % of a Gazebo car's env step. Same operations in the same order as lfilter's direct form: the same floats.
     b = 1 - a
     y = np.empty(len(u))
     prev = y0
