@@ -120,3 +120,29 @@ def test_a_bad_hyperparameters_file_stops_the_bench_before_any_training(tmp_path
     assert done.returncode != 0
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and str(bad) in lines[0] and "stack_size" in lines[0] and "0" in lines[0], done.stderr
+
+
+def test_the_late_window_says_where_a_seed_ended_not_its_luckiest_checkpoint() -> None:
+    """A 10-minute budget: the late window is its last 2 minutes (from 480 s); its robust laps are 8.0 and 9.0 s (the
+    0.7 checkpoint does not count), median 8.5 s against a best of 7.0 s at minute 2."""
+    curve = [
+        point(1, 0.5),
+        point(2, 1.0, 7.0),  # the best, early
+        point(5, 1.0, 7.5),
+        point(8, 1.0, 9.0),  # 480 s: the late window's first
+        point(9, 0.7),
+        point(10, 1.0, 8.0),
+    ]
+    figures = seed_figures(curve, limit_s=6.0, budget_s=600.0)
+    assert figures["best_robust_lap_s"] == 7.0
+    assert figures["late_robust_lap_s"] == 8.5
+    assert figures["drift_after_best"] == pytest.approx(8.5 / 7.0)
+    # Without the budget the window ends at the last checkpoint (600 s here too).
+    assert seed_figures(curve, limit_s=6.0)["late_robust_lap_s"] == 8.5
+
+
+def test_no_late_robust_checkpoint_means_no_drift_figure() -> None:
+    curve = [point(1, 1.0, 7.0), point(9, 0.8), point(10, 0.9)]
+    figures = seed_figures(curve, limit_s=6.0, budget_s=600.0)
+    assert figures["late_robust_lap_s"] is None and figures["drift_after_best"] is None
+    assert seed_figures([], limit_s=6.0)["late_robust_lap_s"] is None

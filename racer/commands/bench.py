@@ -207,7 +207,8 @@ def race(
     console.print(
         f"median best robust lap {result['best_robust_lap_s']} s, limit {result['limit_s']:.2f} s"
         + (f" ({ratio:.2f} x)" if ratio else "")
-        + f", collapses {result['collapses']} ({result['collapses_recovered']} recovered)",
+        + f", collapses {result['collapses']} ({result['collapses_recovered']} recovered)"
+        + f", late robust lap {result['late_robust_lap_s']} s",
         highlight=False,
     )
     write_json(result, json_out)
