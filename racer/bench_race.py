@@ -121,7 +121,11 @@ def _files(folder: Path, hyperparams: dict[str, Any] | None = None) -> tuple[Pat
 
 def race_curve(run_id: str, runs: RunStore, t0: float) -> list[dict]:
     """Per evaluated checkpoint, in version order: version, time made (s from ``t0``), env steps, completion,
-    mean and best lap (s)."""
+    mean and best lap (s).
+
+    Only checkpoints a training update made: the time comes from the trainer's metrics rows, and a collapse-guard
+    rollback writes none, so its republished copy of the best is left out (it is the best again, not a policy the
+    learner reached, and must not count as a recovery or as the final checkpoint)."""
     made = {
         int(r["policy_version"]): (float(r["time"]) - t0, int(r["env_steps"]))
         for r in runs.read_metrics(run_id, missing_ok=True)

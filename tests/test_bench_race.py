@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
-from racer.bench_race import seed_figures
+from model_store import LocalStore, RunStore
+from model_store.runs import METRICS_FILE, evaluation_name
+from racer.bench_race import race_curve, seed_figures
 
 
 def point(version: int, completion: float, mean_lap: float | None = None) -> dict:
@@ -146,3 +150,20 @@ def test_no_late_robust_checkpoint_means_no_drift_figure() -> None:
     figures = seed_figures(curve, limit_s=6.0, budget_s=600.0)
     assert figures["late_robust_lap_s"] is None and figures["drift_after_best"] is None
     assert seed_figures([], limit_s=6.0)["late_robust_lap_s"] is None
+
+
+def test_the_curve_leaves_out_a_rollbacks_copy_of_the_best(tmp_path) -> None:  # noqa: ANN001
+    """v3 is the guard's republished copy of v1 (no metrics row): evaluated 10 of 10, but not a policy the learner
+    reached, so it is neither on the curve nor the final checkpoint."""
+    runs = RunStore(LocalStore(tmp_path))
+    rows = [{"policy_version": v, "time": 100.0 + 10 * v, "env_steps": 500 * v} for v in (1, 2, 4)]
+    runs.write_file("r", METRICS_FILE, "".join(json.dumps(r) + "\n" for r in rows))
+    for version, completion, laps in ((1, 1.0, [11.0, 12.0]), (2, 0.3, []), (3, 1.0, [11.0, 12.0]), (4, 0.7, [13.0])):
+        record = {"completion_rate": completion, "lap_times_s": laps}
+        runs.write_file("r", evaluation_name(version), json.dumps(record))
+    curve = race_curve("r", runs, t0=100.0)
+    assert [p["version"] for p in curve] == [1, 2, 4]
+    assert curve[0] == pytest.approx(
+        {"version": 1, "time_s": 10.0, "env_steps": 500, "completion": 1.0, "mean_lap_s": 11.5, "best_lap_s": 11.0}
+    )
+    assert seed_figures(curve, limit_s=10.0)["final_completion"] == 0.7
