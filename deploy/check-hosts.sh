@@ -122,7 +122,22 @@ start() {
 alive() { kill -0 "$1" 2>/dev/null; }
 probe() { "$PY" "$ROOT/deploy/hosts_probe.py" "$@"; }
 
+# A run killed with SIGKILL (a CI runner's or a session's end) never reaches its trap and leaves its namespaces
+# behind. Remove those of runs whose script is gone and that hold no process; a live run's are left alone.
+sweep_stale() {
+  local ns pid
+  for ns in $(ip netns list | awk '{print $1}'); do
+    [[ $ns =~ ^rh([0-9]+)-(srv|w[0-9]+)$ ]] || continue
+    pid=${BASH_REMATCH[1]}
+    [[ $pid == "$$" ]] && continue
+    grep -qs check-hosts "/proc/$pid/cmdline" && continue
+    [[ -z $(ip netns pids "$ns" 2>/dev/null) ]] || continue
+    ip netns del "$ns" && log "removed $ns, left behind by a run that was killed"
+  done
+}
+
 event start
+sweep_stale
 log "work folder $WORK; namespaces $SRV ${NSW[*]}"
 
 # --- hosts and links -------------------------------------------------------------------------------------------
