@@ -38,6 +38,8 @@ from rich.console import Console
 
 from common.car_calibration import load_car
 from common.config import RunConfig
+from common.errors import OptionError
+from common.jsonfile import read_json_object
 from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
@@ -79,6 +81,9 @@ class BenchRaceSettings:
     """Evaluation start points (the track's direction only)."""
     hyperparams: dict[str, Any] = field(default_factory=dict)
     """A user's hyperparameters laid over :data:`RACE_HYPERPARAMS` (``--hyperparams F``: ``{"stack_size": 3}``)."""
+    reward_constants: dict[str, float] = field(default_factory=dict)
+    """A user's values of the racing example's constants laid over those set to the car (``--reward-constants F``:
+    ``{"MARGIN": 0.25}``); checked by :func:`load_reward_constants`."""
 
     def race_hyperparams(self) -> dict[str, Any]:
         """What the seeds train with: :data:`RACE_HYPERPARAMS` and the user's keys over them."""
@@ -98,6 +103,31 @@ def reward_constants(car_limits: dict[str, Any]) -> dict[str, float]:
         "LATERAL_ACCEL": round(REWARD_SHARE_OF_LIMIT * statistics.median(lateral), 2),
         "BRAKE": round(REWARD_SHARE_OF_LIMIT * statistics.median(brake), 2),
     }
+
+
+def example_constants() -> dict[str, float]:
+    """The racing example's constants (``NAME = number`` at the start of a line) and their shipped values."""
+    text = example_path("racing_line").read_text()
+    found = re.finditer(r"^([A-Z_]+) = ([0-9.]+)", text, flags=re.M)
+    return {m[1]: float(m[2]) if "." in m[2] else int(m[2]) for m in found}
+
+
+def load_reward_constants(path: str | Path) -> dict[str, float]:
+    """A JSON object of the racing example's constants and positive numbers (``{"MARGIN": 0.25}``); otherwise
+    :class:`OptionError` naming the file, the key and the bad value."""
+    data = read_json_object(path, "reward constants file", OptionError)
+    known = example_constants()
+    for key, value in data.items():
+        if key not in known:
+            raise OptionError(
+                f"reward constants file {str(path)!r}: {key!r} is not a constant of the racing example "
+                f"(one of {', '.join(sorted(known))})"
+            )
+        kind = "a positive integer" if isinstance(known[key], int) else "a positive number"
+        allowed = int if isinstance(known[key], int) else int | float
+        if isinstance(value, bool) or not isinstance(value, allowed) or not value > 0:
+            raise OptionError(f"reward constants file {str(path)!r}: {key}: expected {kind}, got {value!r}")
+    return dict(data)
 
 
 def reward_file(folder: Path, constants: dict[str, float]) -> Path:
@@ -243,7 +273,7 @@ def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> 
         space, _ = _files(Path(tmp))
         limit = compute_limit(settings.track, settings.car, space)
     limit_s = float(limit["best_known_lap_s"])
-    constants = reward_constants(limit["car_limits"])
+    constants = {**reward_constants(limit["car_limits"]), **settings.reward_constants}
     if progress:
         progress.print(f"limit on {settings.track} for car {settings.car}: {limit_s:.2f} s", highlight=False)
         progress.print(f"reward example's constants for this car: {constants}", highlight=False)

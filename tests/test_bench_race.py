@@ -167,3 +167,53 @@ def test_the_curve_leaves_out_a_rollbacks_copy_of_the_best(tmp_path) -> None:  #
         {"version": 1, "time_s": 10.0, "env_steps": 500, "completion": 1.0, "mean_lap_s": 11.5, "best_lap_s": 11.0}
     )
     assert seed_figures(curve, limit_s=10.0)["final_completion"] == 0.7
+
+
+def test_a_users_reward_constants_are_laid_over_the_cars_and_written_into_the_example(tmp_path) -> None:  # noqa: ANN001
+    """``--reward-constants F``: the example's own constants only, positive numbers (integers where the example's
+    is one); the copy the seeds train with holds them and still runs as a reward function."""
+    import importlib.util
+
+    from common.errors import OptionError
+    from racer.bench_race import load_reward_constants, reward_file
+
+    good = tmp_path / "constants.json"
+    good.write_text('{"MARGIN": 0.25, "ITERATIONS": 200}')
+    constants = {"MAX_SPEED": 4.0, "LATERAL_ACCEL": 2.6, "BRAKE": 3.4, **load_reward_constants(good)}
+    path = reward_file(tmp_path, constants)
+    spec = importlib.util.spec_from_file_location("set_example_margin", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert (module.MARGIN, module.ITERATIONS, module.LATERAL_ACCEL) == (0.25, 200, 2.6)
+    assert callable(module.reward_function)
+
+    for text, words in (
+        ('{"MARGN": 0.25}', ("MARGN", "MARGIN")),
+        ('{"MARGIN": "wide"}', ("MARGIN", "'wide'")),
+        ('{"MARGIN": -0.1}', ("MARGIN", "-0.1")),
+        ('{"ITERATIONS": 2.5}', ("ITERATIONS", "2.5", "integer")),
+        ('{"BRAKE": true}', ("BRAKE", "True")),
+    ):
+        bad = tmp_path / "bad.json"
+        bad.write_text(text)
+        with pytest.raises(OptionError) as err:
+            load_reward_constants(bad)
+        assert str(bad) in str(err.value) and all(w in str(err.value) for w in words), str(err.value)
+
+
+def test_a_bad_reward_constants_file_stops_the_bench_before_any_training(tmp_path) -> None:  # noqa: ANN001
+    """One line naming the file, the key and the value, and a non-zero exit, before the limit or a seed runs."""
+    import subprocess
+    import sys
+
+    bad = tmp_path / "constants.json"
+    bad.write_text('{"MARGIN": 0}')
+    done = subprocess.run(
+        [sys.executable, "-m", "racer", "bench", "race", "--reward-constants", str(bad), "--minutes", "0.5"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode != 0
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and str(bad) in lines[0] and "MARGIN" in lines[0] and "got 0" in lines[0], done.stderr

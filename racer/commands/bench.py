@@ -182,6 +182,10 @@ def race(
     workers: Annotated[int, typer.Option(min=1, help="Rollout workers.")] = 2,
     eval_starts: Annotated[int, typer.Option(min=1, help="Evaluation start points (track direction).")] = 10,
     hyperparams: Hyperparams = None,
+    reward_constants: Annotated[
+        Path | None,
+        typer.Option(help='JSON of the racing example\'s constants over those set to the car: {"MARGIN": 0.25}.'),
+    ] = None,
     png: Annotated[Path | None, typer.Option("--png", help="Learning curves with the limit drawn.")] = None,
     json_out: JsonOut = None,
 ) -> None:
@@ -189,7 +193,7 @@ def race(
     from common.car_calibration import load_car
     from common.hyperparams import HyperparametersError, load_hyperparameters
     from common.jsonfile import read_json_object
-    from racer.bench_race import BenchRaceSettings, bench_race, plot_race
+    from racer.bench_race import BenchRaceSettings, bench_race, load_reward_constants, plot_race
     from sim.track import load_track
 
     seed_numbers = int_list(seeds, "--seeds")
@@ -199,7 +203,8 @@ def race(
     if hyperparams:
         load_hyperparameters(hyperparams)
         overrides = read_json_object(hyperparams, "hyperparameters file", HyperparametersError)
-    settings = BenchRaceSettings(seed_numbers, minutes, track, car, workers, eval_starts, overrides)
+    constants = load_reward_constants(reward_constants) if reward_constants else {}
+    settings = BenchRaceSettings(seed_numbers, minutes, track, car, workers, eval_starts, overrides, constants)
     result = bench_race(settings, console)
     if png:
         plot_race(result, png)
