@@ -55,6 +55,7 @@ STABILITY_KEYS: tuple[str, ...] = (
     "collapse_drop",
     "collapse_patience",
     "collapse_lr_factor",
+    "collapse_lr_floor",
     "collapse_slowdown",
 )
 """racer's stability knobs (README, "Stability knobs"): each off by default, which is DeepRacer's behaviour."""
@@ -165,6 +166,10 @@ class Hyperparameters(BaseModel):
     """racer: consecutive collapsed evaluations (of checkpoints newer than the best) before rolling back."""
     collapse_lr_factor: float = Field(0.5, gt=0, le=1)
     """racer: each rollback multiplies the learning rate (and what the schedule gives later) by this."""
+    collapse_lr_floor: float = Field(0.1, ge=0, le=1)
+    """racer: the rollbacks never take the learning rate below this fraction of the schedule's (0: no floor). Without
+    one, a run that keeps rolling back to an early best halves its rate each time until learning stops (2026-11-26:
+    17 rollbacks took one seed's rate to 1.9e-8)."""
     collapse_slowdown: float | None = Field(None, gt=0)
     """racer: an evaluation whose mean lap is more than ``1 + collapse_slowdown`` times the best checkpoint's
     also counts as collapsed (0.15: 15 % slower), so the guard also undoes a drift to slower laps, not only lost

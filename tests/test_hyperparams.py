@@ -175,6 +175,8 @@ def test_unknown_key_is_a_typo(tmp_path: Path) -> None:
         ("collapse_patience", 0),
         ("collapse_lr_factor", 0),
         ("collapse_lr_factor", 2),
+        ("collapse_lr_floor", -0.1),
+        ("collapse_lr_floor", 1.5),
         ("collapse_slowdown", 0),
         ("collapse_slowdown", "fast"),
     ],
@@ -225,6 +227,7 @@ STABILITY_FILE = {
     "collapse_drop": 0.4,
     "collapse_patience": 3,
     "collapse_lr_factor": 0.25,
+    "collapse_lr_floor": 0.05,
     "collapse_slowdown": 0.2,
 }
 

@@ -23,9 +23,28 @@ from model_store.runs import METRICS_FILE
 from rollout_worker.worker import RolloutWorker
 from tests.test_training_loop import fill, start
 from trainer.evaluator import evaluation_summary, save_evaluation, score
-from trainer.process import CollapseWatch, Stability, Trainer, TrainerOptions, is_collapsed, is_slower
+from trainer.process import (
+    CollapseWatch,
+    Stability,
+    Trainer,
+    TrainerOptions,
+    is_collapsed,
+    is_slower,
+    rolled_back_lr_scale,
+)
 
 # --- the rule ------------------------------------------------------------------------------------------------
+
+
+def test_rolled_back_lr_scale_by_hand() -> None:
+    """Halved per rollback down to the floor, then held there: 1 -> 0.5 -> 0.25 -> 0.125 -> 0.1 -> 0.1."""
+    scales = [1.0]
+    for _ in range(5):
+        scales.append(rolled_back_lr_scale(scales[-1], 0.5, 0.1))
+    assert scales == pytest.approx([1.0, 0.5, 0.25, 0.125, 0.1, 0.1])
+    assert rolled_back_lr_scale(0.125, 0.5, 0.0) == pytest.approx(0.0625)  # 0: no floor (racer before the floor)
+    assert rolled_back_lr_scale(1.0, 1.0, 0.1) == 1.0  # a factor of 1 keeps the rate
+    assert rolled_back_lr_scale(0.01, 0.5, 0.1) == pytest.approx(0.01)  # a floor never raises a lower scale
 
 
 def test_is_collapsed_by_hand() -> None:
@@ -239,7 +258,10 @@ def test_a_collapse_rolls_back_to_the_best_weights_and_optimizer_at_a_lower_lr(
 
 def test_a_drift_to_slower_laps_rolls_back_with_collapse_slowdown(redis_url, run_id, tmp_path, caplog) -> None:
     trainer, worker, r, runs = three_versions(
-        run_id, redis_url, tmp_path, HP | {"collapse_min_best": 0.9, "collapse_slowdown": 0.15}
+        run_id,
+        redis_url,
+        tmp_path,
+        HP | {"collapse_min_best": 0.9, "collapse_slowdown": 0.15, "collapse_lr_floor": 0.75},
     )
     evaluated(runs, r, run_id, 1, 1.0, lap=8.0)  # the best: every trial a lap, 8 s each
     evaluated(runs, r, run_id, 2, 1.0, lap=9.5)  # all laps still, but more than 8 * 1.15 = 9.2 s
@@ -248,7 +270,8 @@ def test_a_drift_to_slower_laps_rolls_back_with_collapse_slowdown(redis_url, run
     evaluated(runs, r, run_id, 3, 1.0, lap=9.4)
     with caplog.at_level(logging.WARNING, logger="racer.trainer"):
         assert trainer.guard() is True
-    assert trainer.stability == Stability(lr_scale=0.5, collapses=1, rollbacks=1, floor=4, slow_rollbacks=1)
+    # The rollback halves the rate, but collapse_lr_floor 0.75 holds it at three quarters of the schedule's.
+    assert trainer.stability == Stability(lr_scale=0.75, collapses=1, rollbacks=1, floor=4, slow_rollbacks=1)
     assert trainer.version == 4
     best_model, _ = checkpoint_from_bytes(runs.load_checkpoint(run_id, 1)[0])
     assert _same(trainer.model.state_dict(), best_model)

@@ -113,7 +113,8 @@ class Stability:
     """What the collapse guard has done to the run; kept in every checkpoint's metadata, so a resumed run keeps it."""
 
     lr_scale: float = 1.0
-    """Product of ``collapse_lr_factor`` over the rollbacks so far: it multiplies the scheduled learning rate."""
+    """Product of ``collapse_lr_factor`` over the rollbacks so far, never below ``collapse_lr_floor``
+    (:func:`rolled_back_lr_scale`): it multiplies the scheduled learning rate."""
     collapses: int = 0
     """Collapses detected."""
     rollbacks: int = 0
@@ -136,6 +137,12 @@ class Stability:
             floor=int(saved.get("floor", 0)),
             slow_rollbacks=int(saved.get("slow_rollbacks", 0)),
         )
+
+
+def rolled_back_lr_scale(scale: float, factor: float, floor: float) -> float:
+    """The learning-rate scale after one more rollback: ``scale * factor``, but not below ``floor`` (nor above
+    ``scale``: a floor added to a resumed run whose scale is already lower does not raise it)."""
+    return min(scale, max(scale * factor, floor))
 
 
 def is_collapsed(completion: float, best_completion: float, min_best: float, drop: float) -> bool:
@@ -580,7 +587,9 @@ class Trainer:
         if optimizer is None:  # not kept (a best from before the guard was on): its weights, a fresh optimizer
             log.warning("collapse guard: v%d's optimizer state was not kept; rolling back its weights", best_version)
         self._load_state(payload, optimizer, best_version)
-        self.stability.lr_scale *= self.hp.collapse_lr_factor
+        self.stability.lr_scale = rolled_back_lr_scale(
+            self.stability.lr_scale, self.hp.collapse_lr_factor, self.hp.collapse_lr_floor
+        )
         self.stability.rollbacks += 1
         if any(not self._lost_completion(e, best_completion) for e in collapsed):
             self.stability.slow_rollbacks += 1
