@@ -108,22 +108,29 @@ def test_a_users_hyperparameters_are_laid_over_the_benchs(tmp_path) -> None:  # 
     assert BenchRaceSettings().race_hyperparams() == RACE_HYPERPARAMS
 
 
-def test_a_bad_hyperparameters_file_stops_the_bench_before_any_training(tmp_path) -> None:  # noqa: ANN001
+@pytest.mark.parametrize(
+    ("option", "text", "key", "value"),
+    [
+        ("--hyperparams", '{"stack_size": 0}', "stack_size", "0"),
+        ("--reward-constants", '{"MARGIN": 0}', "MARGIN", "got 0"),
+    ],
+)
+def test_a_bad_settings_file_stops_the_bench_before_any_training(tmp_path, option, text, key, value) -> None:  # noqa: ANN001
     """One line naming the file, the key and the value, and a non-zero exit, before the limit or a seed runs."""
     import subprocess
     import sys
 
-    bad = tmp_path / "hyperparameters.json"
-    bad.write_text('{"stack_size": 0}')
+    bad = tmp_path / "settings.json"
+    bad.write_text(text)
     done = subprocess.run(
-        [sys.executable, "-m", "racer", "bench", "race", "--hyperparams", str(bad), "--minutes", "0.5"],
+        [sys.executable, "-m", "racer", "bench", "race", option, str(bad), "--minutes", "0.5"],
         capture_output=True,
         text=True,
         timeout=60,
     )
     assert done.returncode != 0
     lines = [line for line in done.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and str(bad) in lines[0] and "stack_size" in lines[0] and "0" in lines[0], done.stderr
+    assert len(lines) == 1 and str(bad) in lines[0] and key in lines[0] and value in lines[0], done.stderr
 
 
 def test_the_late_window_says_where_a_seed_ended_not_its_luckiest_checkpoint() -> None:
@@ -199,21 +206,3 @@ def test_a_users_reward_constants_are_laid_over_the_cars_and_written_into_the_ex
         with pytest.raises(OptionError) as err:
             load_reward_constants(bad)
         assert str(bad) in str(err.value) and all(w in str(err.value) for w in words), str(err.value)
-
-
-def test_a_bad_reward_constants_file_stops_the_bench_before_any_training(tmp_path) -> None:  # noqa: ANN001
-    """One line naming the file, the key and the value, and a non-zero exit, before the limit or a seed runs."""
-    import subprocess
-    import sys
-
-    bad = tmp_path / "constants.json"
-    bad.write_text('{"MARGIN": 0}')
-    done = subprocess.run(
-        [sys.executable, "-m", "racer", "bench", "race", "--reward-constants", str(bad), "--minutes", "0.5"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert done.returncode != 0
-    lines = [line for line in done.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and str(bad) in lines[0] and "MARGIN" in lines[0] and "got 0" in lines[0], done.stderr
