@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
+from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -52,11 +55,17 @@ def test_a_dip_that_stays_above_half_is_not_a_collapse() -> None:
     assert figures["collapses"] == 0 and figures["best_robust_lap_s"] == 7.0
 
 
+def _reward_module(path: Path) -> ModuleType:
+    """The reward file at ``path``, imported as a module (as the worker runs a user's reward function)."""
+    spec = importlib.util.spec_from_file_location(f"reward_{path.parent.name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def test_the_reward_examples_constants_are_set_to_the_car(tmp_path) -> None:  # noqa: ANN001
     """80 % of the median lateral acceleration from 2 m/s and of the median braking from 1 m/s, written into a copy
     of the example that still runs as a reward function."""
-    import importlib.util
-
     from racer.bench_race import reward_constants, reward_file
 
     limits = {
@@ -66,10 +75,7 @@ def test_the_reward_examples_constants_are_set_to_the_car(tmp_path) -> None:  # 
     }
     constants = reward_constants(limits)
     assert constants == {"MAX_SPEED": 4.0, "LATERAL_ACCEL": 3.2, "BRAKE": 4.4}
-    path = reward_file(tmp_path, constants)
-    spec = importlib.util.spec_from_file_location("set_example", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = _reward_module(reward_file(tmp_path, constants))
     assert (module.MAX_SPEED, module.LATERAL_ACCEL, module.BRAKE) == (4.0, 3.2, 4.4)
     assert callable(module.reward_function)
 
@@ -179,18 +185,13 @@ def test_the_curve_leaves_out_a_rollbacks_copy_of_the_best(tmp_path) -> None:  #
 def test_a_users_reward_constants_are_laid_over_the_cars_and_written_into_the_example(tmp_path) -> None:  # noqa: ANN001
     """``--reward-constants F``: the example's own constants only, positive numbers (integers where the example's
     is one); the copy the seeds train with holds them and still runs as a reward function."""
-    import importlib.util
-
     from common.errors import OptionError
     from racer.bench_race import load_reward_constants, reward_file
 
     good = tmp_path / "constants.json"
     good.write_text('{"MARGIN": 0.25, "ITERATIONS": 200}')
     constants = {"MAX_SPEED": 4.0, "LATERAL_ACCEL": 2.6, "BRAKE": 3.4, **load_reward_constants(good)}
-    path = reward_file(tmp_path, constants)
-    spec = importlib.util.spec_from_file_location("set_example_margin", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = _reward_module(reward_file(tmp_path, constants))
     assert (module.MARGIN, module.ITERATIONS, module.LATERAL_ACCEL) == (0.25, 200, 2.6)
     assert callable(module.reward_function)
 
