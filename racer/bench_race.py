@@ -105,10 +105,14 @@ def reward_constants(car_limits: dict[str, Any]) -> dict[str, float]:
     }
 
 
+_CONSTANT_LINE = r"^({name}) = ([0-9.]+)"
+"""How the racing example spells a constant: ``NAME = number`` at the start of a line; read and set only with it."""
+
+
 def example_constants() -> dict[str, float]:
-    """The racing example's constants (``NAME = number`` at the start of a line) and their shipped values."""
+    """The racing example's constants and their shipped values (integers where the example writes one)."""
     text = example_path("racing_line").read_text()
-    found = re.finditer(r"^([A-Z_]+) = ([0-9.]+)", text, flags=re.M)
+    found = re.finditer(_CONSTANT_LINE.format(name="[A-Z_]+"), text, flags=re.M)
     return {m[1]: float(m[2]) if "." in m[2] else int(m[2]) for m in found}
 
 
@@ -134,7 +138,8 @@ def reward_file(folder: Path, constants: dict[str, float]) -> Path:
     """A copy of the racing example with its constants set (what a user does by hand), in ``folder``."""
     text = example_path("racing_line").read_text()
     for name, value in constants.items():
-        text, found = re.subn(rf"^{name} = [0-9.]+", f"{name} = {value}", text, count=1, flags=re.M)
+        pattern = _CONSTANT_LINE.format(name=re.escape(name))
+        text, found = re.subn(pattern, f"{name} = {value}", text, count=1, flags=re.M)
         if not found:
             raise ValueError(f"{example_path('racing_line')}: no constant {name} to set")
     path = folder / "reward_function.py"
