@@ -2,8 +2,9 @@
 
 For each seed, one after the other: ``racer train`` (embedded Redis, 2 workers, the evaluator beside the trainer)
 for a fixed budget on a 4 m/s action space with the racing reward example, racer's stability knobs on (the
-collapse guard and target-KL early stopping). The evaluator judges every checkpoint on 10 start points spread
-round the lap, in the track's direction as a DeepRacer race is driven, with 10 % action noise. The figures:
+collapse guard with its pace rule, and target-KL early stopping: :data:`RACE_HYPERPARAMS`). The evaluator judges
+every checkpoint on 10 start points spread round the lap, in the track's direction as a DeepRacer race is driven,
+with 10 % action noise. The figures:
 
 * ``time_to_robust_s``: when the first checkpoint that completed all its evaluation laps was made;
 * ``best_robust_lap_s``: the lowest mean lap time of such a checkpoint (every trial a lap, standing starts);
@@ -50,13 +51,19 @@ RACE_ACTIONS = [
     {"steering_angle": steer, "speed": speed} for speed in (1.5, 2.75, 4.0) for steer in (-30.0, -15.0, 0.0, 15.0, 30.0)
 ]
 """A 4 m/s discrete action space: five steering angles at three speeds."""
-RACE_HYPERPARAMS = {"collapse_guard": True, "collapse_min_best": 0.9, "target_kl": 0.05}
+GUARD_HYPERPARAMS = {"collapse_guard": True, "collapse_min_best": 0.9, "target_kl": 0.05}
 """DeepRacer's defaults plus racer's stability knobs; learning rate and entropy constant, as in DeepRacer. The guard
 acts only once a checkpoint has been (nearly) robust: in a first 15-minute run it acted from a best of 0.6 of 10
 trials, where completion is still noise, and rolled one seed back 7 times, halving the learning rate each time
 until learning stopped. Linear schedules of the learning rate and entropy to 10 % over 100 updates were measured
 on 2026-11-26 (docs/racing.md): no faster (median best robust lap 1.49 × the limit, against 1.34 × with constant
-rates), so they are not the bench's default."""
+rates), so they are not the bench's default. ``racer bench oa`` uses these as they are."""
+RACE_HYPERPARAMS = {**GUARD_HYPERPARAMS, "collapse_slowdown": 0.15}
+""":data:`GUARD_HYPERPARAMS` and the guard's pace rule: a checkpoint whose robust laps are more than 15 % slower than
+the best's counts as collapsed too. Without it two of three seeds of the default car drifted 1-4 s slower after
+their best and stayed there; with it (and ``collapse_lr_floor``'s default), 3 seeds on an AMD EPYC, 2026-11-27:
+1.15, 1.18 and 1.24 × the limit (median 1.18 ×, against 1.24 × without it on the same machine), no collapse,
+every final checkpoint 10 of 10 (docs/racing.md)."""
 REWARD_SHARE_OF_LIMIT = 0.8
 """The reward example's LATERAL_ACCEL and BRAKE are this share of the car's measured figures: a line's target
 speeds a little inside what the car holds, as the example's default (5 m/s² for a car measured at ~6.7) is."""
@@ -86,8 +93,13 @@ class BenchRaceSettings:
     ``{"MARGIN": 0.25}``); checked by :func:`load_reward_constants`."""
 
     def race_hyperparams(self) -> dict[str, Any]:
-        """What the seeds train with: :data:`RACE_HYPERPARAMS` and the user's keys over them."""
-        return {**RACE_HYPERPARAMS, **self.hyperparams}
+        """What the seeds train with: :data:`RACE_HYPERPARAMS` and the user's keys over them. A user who turns the
+        collapse guard off (``{"collapse_guard": false}``: DeepRacer's behaviour) gets none of the bench's guard
+        settings: they would change nothing, and the run's hyperparameters would list them as idle."""
+        bench = RACE_HYPERPARAMS
+        if self.hyperparams.get("collapse_guard") is False:
+            bench = {k: v for k, v in bench.items() if not k.startswith("collapse_")}
+        return {**bench, **self.hyperparams}
 
 
 def reward_constants(car_limits: dict[str, Any]) -> dict[str, float]:

@@ -82,14 +82,16 @@ def test_the_reward_examples_constants_are_set_to_the_car(tmp_path) -> None:  # 
 
 def test_the_bench_turns_racers_stability_knobs_on_and_keeps_deepracers_rates(tmp_path) -> None:  # noqa: ANN001
     """bench race's hyperparameters file loads as racer train reads it: the collapse guard from a nearly robust best
-    and target-KL early stopping on; learning rate and entropy constant, as in DeepRacer; bench oa the same."""
+    and target-KL early stopping on, with the guard's pace rule; learning rate and entropy constant, as in DeepRacer;
+    bench oa the same without the pace rule."""
     from common.hyperparams import Hyperparameters, load_hyperparameters
     from racer.bench_oa import OA_HYPERPARAMS
-    from racer.bench_race import RACE_HYPERPARAMS, _files
+    from racer.bench_race import GUARD_HYPERPARAMS, _files
 
     _, path = _files(tmp_path)
     hp = load_hyperparameters(path)
     assert hp.collapse_guard and hp.collapse_min_best == 0.9 and hp.target_kl == 0.05
+    assert hp.collapse_slowdown == 0.15  # the guard's pace rule: on in bench race
     defaults = Hyperparameters()
     assert (hp.lr_schedule, hp.entropy_schedule, hp.lr, hp.beta_entropy) == (
         "constant",
@@ -97,7 +99,7 @@ def test_the_bench_turns_racers_stability_knobs_on_and_keeps_deepracers_rates(tm
         defaults.lr,
         defaults.beta_entropy,
     )
-    assert OA_HYPERPARAMS == RACE_HYPERPARAMS
+    assert OA_HYPERPARAMS == GUARD_HYPERPARAMS and "collapse_slowdown" not in OA_HYPERPARAMS
 
 
 def test_a_users_hyperparameters_are_laid_over_the_benchs(tmp_path) -> None:  # noqa: ANN001
@@ -112,6 +114,20 @@ def test_a_users_hyperparameters_are_laid_over_the_benchs(tmp_path) -> None:  # 
     hp = load_hyperparameters(path)
     assert hp.stack_size == 3 and hp.target_kl == 0.02 and hp.collapse_guard
     assert BenchRaceSettings().race_hyperparams() == RACE_HYPERPARAMS
+
+
+def test_a_user_can_turn_the_benchs_collapse_guard_off(tmp_path) -> None:  # noqa: ANN001
+    """``{"collapse_guard": false}`` (DeepRacer's behaviour) drops the bench's guard settings, which would change
+    nothing without the guard, and keeps its other knobs; the merged file loads with no idle key noted."""
+    from common.hyperparams import load_hyperparameters
+    from racer.bench_race import BenchRaceSettings, _files
+
+    merged = BenchRaceSettings(hyperparams={"collapse_guard": False}).race_hyperparams()
+    assert merged == {"collapse_guard": False, "target_kl": 0.05}
+    _, path = _files(tmp_path, merged)
+    hp = load_hyperparameters(path)
+    assert not hp.collapse_guard and hp.collapse_slowdown is None and hp.target_kl == 0.05
+    assert not [note for note in hp.ignored() if "collapse_" in note]
 
 
 @pytest.mark.parametrize(
