@@ -49,8 +49,8 @@ OA_ACTIONS = [
 camera at 15 Hz can react to (a box 1 m ahead is 7 steps away at 2 m/s)."""
 OA_SENSORS = [STEREO_CAMERAS]
 OA_HYPERPARAMS = GUARD_HYPERPARAMS
-"""The stability knobs of ``racer bench race`` without its pace rule (``collapse_slowdown``): the object-avoidance
-figures were measured without it, and a race round boxes has no measured pace to hold yet."""
+"""The stability knobs of ``racer bench race`` without its pace rule (``collapse_slowdown``), with which the
+object-avoidance figures were measured: the rule has not been measured on a race round boxes."""
 OA_REWARD = "object_avoidance"
 """The shipped reward example (``sim/reward_examples/object_avoidance.py``)."""
 BOXES = 3

@@ -61,8 +61,8 @@ rates), so they are not the bench's default. ``racer bench oa`` uses these as th
 RACE_HYPERPARAMS = {**GUARD_HYPERPARAMS, "collapse_slowdown": 0.15}
 """:data:`GUARD_HYPERPARAMS` and the guard's pace rule: a checkpoint whose robust laps are more than 15 % slower than
 the best's counts as collapsed too. Without it two of three seeds of the default car drifted 1-4 s slower after
-their best and stayed there; with it (and ``collapse_lr_floor``'s default), 3 seeds on an AMD EPYC, 2026-11-27:
-1.15, 1.18 and 1.24 × the limit (median 1.18 ×, against 1.24 × without it on the same machine), no collapse,
+their best and stayed there; with it (and ``collapse_lr_floor``'s default), 3 seeds on two AMD EPYC machines,
+2026-11-27: 1.15, 1.18 and 1.24 × the limit (median 1.18 ×; without it, 1.24 × on the first of them), no collapse,
 every final checkpoint 10 of 10 (docs/racing.md)."""
 REWARD_SHARE_OF_LIMIT = 0.8
 """The reward example's LATERAL_ACCEL and BRAKE are this share of the car's measured figures: a line's target
