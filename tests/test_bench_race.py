@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
-from types import ModuleType
+from types import SimpleNamespace
 
 import pytest
 
@@ -55,12 +54,12 @@ def test_a_dip_that_stays_above_half_is_not_a_collapse() -> None:
     assert figures["collapses"] == 0 and figures["best_robust_lap_s"] == 7.0
 
 
-def _reward_module(path: Path) -> ModuleType:
-    """The reward file at ``path``, imported as a module (as the worker runs a user's reward function)."""
-    spec = importlib.util.spec_from_file_location(f"reward_{path.parent.name}", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def _reward_module(path: Path) -> SimpleNamespace:
+    """The reward file at ``path``, loaded as the worker loads a user's reward function
+    (``sim.reward.load_reward_function``), with its module's names as attributes."""
+    from sim.reward import load_reward_function
+
+    return SimpleNamespace(**load_reward_function(path).fn.__globals__)
 
 
 def test_the_reward_examples_constants_are_set_to_the_car(tmp_path) -> None:  # noqa: ANN001
