@@ -226,19 +226,29 @@ class LineFollower:
             # on, and the wheels held where they are, keep a plan that the simulator showed to work.
             trials.append(np.append(self._last[1:], self._last[-1]))
             trials.append(np.full(steps, physics.steering_deg))
-        best, best_cost = trials[0], math.inf
-        for trial in trials:
-            cost = self._drive_ahead(physics, trial, profile)
-            if cost < best_cost:
-                best, best_cost = trial, cost
+        # The trials most likely to win are driven first (the last choice, then the plan itself), so that the
+        # others can stop as soon as their summed cost passes the best one's: the cost only grows along a drive,
+        # so the winner is the one a full drive of every trial finds, at about half the simulator steps.
+        order = [*range(len(CHECK_OFFSETS_DEG) ** 2, len(trials)), len(CHECK_OFFSETS_DEG) ** 2 // 2]
+        order += [i for i in range(len(trials)) if i not in order]
+        best, best_cost = order[0], math.inf
+        for i in order:
+            cost = self._drive_ahead(physics, trials[i], profile, best_cost)
+            if cost < best_cost or (cost == best_cost and i < best):
+                best, best_cost = i, cost
             physics.restore(saved)
-        self._last = best
-        return float(best[0])
+        self._last = trials[best]
+        return float(trials[best][0])
 
-    def _drive_ahead(self, physics: CarPhysics, steering: np.ndarray, profile: np.ndarray) -> float:
-        """The plan's cost (``_cost`` summed) over a drive of these steering commands on ``physics``."""
+    def _drive_ahead(
+        self, physics: CarPhysics, steering: np.ndarray, profile: np.ndarray, bound: float = math.inf
+    ) -> float:
+        """The plan's cost (``_cost`` summed) over a drive of these steering commands on ``physics``; ``inf`` as
+        soon as the sum passes ``bound``."""
         near, cost = self._near, 0.0
         for steer in steering:
+            if cost > bound:
+                return math.inf
             physics.command(float(steer), self._speed_command(near, physics.speed, profile))
             physics.step()
             pose = physics.pose
