@@ -97,12 +97,14 @@ class LineFollower:
     _split: int = field(init=False)
     _near: int = field(default=0, init=False)
     _last: np.ndarray | None = field(default=None, init=False, repr=False)
+    _read: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         pts = self.line.points
         self._s = np.concatenate([[0.0], np.cumsum(self.line.ds)])
         pace = np.broadcast_to(np.asarray(self.pace, dtype=np.float64), (len(pts),))
         self._pace = np.append(pace, pace[0])  # on self._s: the finish is the start
+        self._read = np.zeros(len(self._pace), dtype=bool)
         t = np.arange(DENSE_PER_POINT) / DENSE_PER_POINT
         step = np.roll(pts, -1, axis=0) - pts
         self._dense = (pts[:, None, :] + t[None, :, None] * step[:, None, :]).reshape(-1, 2)
@@ -132,6 +134,28 @@ class LineFollower:
         plan = self._plan(physics, profile)
         return self._check(physics, plan, profile), self._speed_command(self._near, physics.speed, profile)
 
+    def _paced(self, s: float | np.ndarray, profile: np.ndarray) -> np.ndarray:
+        """The paced profile at distances ``s`` (in [0, lap length)), noting which line points it read."""
+        at = np.searchsorted(self._s, s)
+        self._read[np.clip(at, 0, len(self._s) - 1)] = True
+        self._read[np.clip(np.asarray(at) - 1, 0, len(self._s) - 1)] = True
+        return np.interp(s, self._s, profile * self._pace)
+
+    def take_reads(self) -> np.ndarray:
+        """Indices of the points of the pace (on the line's points and the finish) read since the last call."""
+        read = np.flatnonzero(self._read)
+        self._read[:] = False
+        return read
+
+    @property
+    def state(self) -> tuple[int, np.ndarray | None]:
+        """What the next command depends on besides the car and the pace: the nearest line point, the last plan."""
+        return self._near, self._last
+
+    @state.setter
+    def state(self, value: tuple[int, np.ndarray | None]) -> None:
+        self._near, self._last = value
+
     def _nearest(self, point: np.ndarray, near: int) -> int:
         """Index of the line point nearest ``point``, searched a short way about ``near``."""
         window = (near + np.arange(-5, 40)) % len(self.line.points)
@@ -139,7 +163,7 @@ class LineFollower:
 
     def _speed_command(self, near: int, speed: float, profile: np.ndarray) -> float:
         ahead = self._s[near] + max(speed, 0.5) * SPEED_LEAD_S
-        target = float(np.interp(ahead % self._s[-1], self._s, profile * self._pace))
+        target = float(self._paced(ahead % self._s[-1], profile))
         if target > speed + ACCEL_MARGIN_MPS:
             # The profile's acceleration is the car's at full command (a velocity servo accelerates in proportion
             # to its error): commanding the profile's own speed, the Gazebo car lost 0.36 s of a 7.6 s limit in
@@ -157,7 +181,7 @@ class LineFollower:
         n, horizon = plans.shape
         v_now = max(physics.speed, 0.3)
         s_ahead = self._s[self._near] + v_now * PERIOD_S * np.arange(1, horizon + 1)
-        speeds = 0.5 * (v_now + np.maximum(np.interp(s_ahead % self._s[-1], self._s, profile * self._pace), 0.3))
+        speeds = 0.5 * (v_now + np.maximum(self._paced(s_ahead % self._s[-1], profile), 0.3))
         lag = math.exp(-PERIOD_S / max(self.limits.steering_tau_s, 1e-3))
         steer = np.full(n, physics.steering_deg)
         yaw = np.full(n, pose.yaw)
@@ -209,7 +233,25 @@ class LineFollower:
     def _check(self, physics: CarPhysics, plan: np.ndarray, profile: np.ndarray) -> float:
         """The first steering command of the best of the plan's neighbours, the previous period's choice and the
         wheels held, driven on the simulator."""
+        trials = self._trials(physics, plan)
+        # The trials most likely to win are driven first (the last choice, then the plan itself), so that the
+        # others can stop as soon as their summed cost passes the best one's: the cost only grows along a drive,
+        # so the winner is the one a full drive of every trial finds, at about half the simulator steps.
+        order = [*range(len(CHECK_OFFSETS_DEG) ** 2, len(trials)), len(CHECK_OFFSETS_DEG) ** 2 // 2]
+        order += [i for i in range(len(trials)) if i not in order]
         saved = physics.snapshot()
+        best, best_cost = order[0], math.inf
+        for i in order:
+            cost = self._drive_ahead(physics, trials[i], profile, best_cost)
+            if cost < best_cost or (cost == best_cost and i < best):
+                best, best_cost = i, cost
+            physics.restore(saved)
+        self._last = trials[best]
+        return float(trials[best][0])
+
+    def _trials(self, physics: CarPhysics, plan: np.ndarray) -> list[np.ndarray]:
+        """The steering sequences :meth:`_check` drives: the plan's neighbours (the plan itself in the middle), then
+        the last period's choice one period on and the wheels held, once there is a last choice."""
         steps = min(CHECK_STEPS, len(plan))
         trials = [
             np.clip(
@@ -226,19 +268,7 @@ class LineFollower:
             # on, and the wheels held where they are, keep a plan that the simulator showed to work.
             trials.append(np.append(self._last[1:], self._last[-1]))
             trials.append(np.full(steps, physics.steering_deg))
-        # The trials most likely to win are driven first (the last choice, then the plan itself), so that the
-        # others can stop as soon as their summed cost passes the best one's: the cost only grows along a drive,
-        # so the winner is the one a full drive of every trial finds, at about half the simulator steps.
-        order = [*range(len(CHECK_OFFSETS_DEG) ** 2, len(trials)), len(CHECK_OFFSETS_DEG) ** 2 // 2]
-        order += [i for i in range(len(trials)) if i not in order]
-        best, best_cost = order[0], math.inf
-        for i in order:
-            cost = self._drive_ahead(physics, trials[i], profile, best_cost)
-            if cost < best_cost or (cost == best_cost and i < best):
-                best, best_cost = i, cost
-            physics.restore(saved)
-        self._last = trials[best]
-        return float(trials[best][0])
+        return trials
 
     def _drive_ahead(
         self, physics: CarPhysics, steering: np.ndarray, profile: np.ndarray, bound: float = math.inf
@@ -309,10 +339,10 @@ def drive_line(
     env = follower_env(track, limits, car, max_seconds)
     try:
         pace = np.ones(len(line.points))
-        tries = 0
+        tries, record = 0, None
         while True:
             tries += 1
-            lap = _drive(env, LineFollower(line, limits, pace))
+            lap, record = _drive(env, LineFollower(line, limits, pace.copy()), record)
             if lap.status == "lap_complete" or not len(lap.path) or tries == MAX_TRIES:
                 break
             pace[_stretch_before(line, lap.path[-1])] *= PACE_STEP
@@ -344,8 +374,37 @@ def follower_env(track: str, limits: CarLimits, car: CarCalibration | None = Non
         return RacerEnv(config=config)
 
 
-def _drive(env, follower: LineFollower) -> DrivenLap:  # noqa: ANN001 - a RacerEnv (imported lazily above)
+@dataclass
+class TryRecord:
+    """One try's commands, with what each depended on, so that the next try can replay the part of the lap that
+    its slower pace does not change instead of planning it again."""
+
+    pace: np.ndarray
+    """The try's pace on the line's points and the finish."""
+    actions: list[np.ndarray] = field(default_factory=list)
+    """The action sent at each step."""
+    states: list[tuple[int, np.ndarray | None]] = field(default_factory=list)
+    """The follower's :attr:`LineFollower.state` after each command."""
+    reads: list[np.ndarray] = field(default_factory=list)
+    """The pace points each command read."""
+
+    def same_steps(self, pace: np.ndarray) -> int:
+        """How many of this try's first steps a try at ``pace`` would command the same: those before the first one
+        that read a point whose pace differs (the env, the car and the follower are deterministic from reset)."""
+        changed = self.pace != pace
+        for step, read in enumerate(self.reads):
+            if changed[read].any():
+                return step
+        return len(self.reads)
+
+
+def _drive(env, follower: LineFollower, replay: TryRecord | None = None) -> tuple[DrivenLap, TryRecord]:  # noqa: ANN001 - a RacerEnv (imported lazily above)
+    """One lap (or until the env ends the episode) driven by ``follower``, replaying the steps of ``replay`` (an
+    earlier try on the same env) that this follower's pace would command the same: at the limit the Gazebo car
+    left AWS_track three times at 58 % of the lap, and each retry planned that 58 % again."""
     _, info = env.reset(seed=0, options={"start_index": 0, "reverse": False})
+    record = TryRecord(follower._pace.copy())
+    same = 0 if replay is None else replay.same_steps(record.pace)
     path, travelled, last = [], 0.0, None
     done = False
     while not done:
@@ -353,14 +412,23 @@ def _drive(env, follower: LineFollower) -> DrivenLap:  # noqa: ANN001 - a RacerE
         here = np.array([pose.x, pose.y])
         travelled += 0.0 if last is None else float(np.linalg.norm(here - last))
         last = here
-        steer, speed = follower.command(env.physics, travelled)
-        _, _, terminated, truncated, info = env.step(np.array([steer, speed], dtype=np.float32))
+        step = len(record.actions)
+        if step < same:
+            action, state, read = replay.actions[step], replay.states[step], replay.reads[step]
+            follower.state = state
+        else:
+            steer, speed = follower.command(env.physics, travelled)
+            action, state, read = np.array([steer, speed], dtype=np.float32), follower.state, follower.take_reads()
+        record.actions.append(action)
+        record.states.append(state)
+        record.reads.append(read)
+        _, _, terminated, truncated, info = env.step(action)
         p = info["params"]
         path.append((p["x"], p["y"]))
         done = terminated or truncated
     p, status = info["params"], info["episode_status"]
     lap = float(p["sim_time"]) if status == "lap_complete" else None
-    return DrivenLap(str(status), lap, float(p["progress"]), np.array(path))
+    return DrivenLap(str(status), lap, float(p["progress"]), np.array(path)), record
 
 
 def _stretch_before(line: RacingLine, where: np.ndarray) -> np.ndarray:

@@ -247,7 +247,7 @@ def test_the_follower_keeps_the_gazebo_car_on_track_at_and_below_its_limit(track
     line = racing_line(load_track(track), lim)
     env = follower_env(track, lim, car)
     try:
-        lap = _drive(env, LineFollower(line, lim, pace))
+        lap, _ = _drive(env, LineFollower(line, lim, pace))
     finally:
         env.close()
     assert lap.status == "lap_complete", f"left {track} at {lap.progress:.1f} %"
@@ -291,3 +291,54 @@ def test_the_followers_k_d_tree_finds_the_same_costs_as_all_pairs(limits: CarLim
     tree = follower._cost(points, near, 200, yaw)
     pairs = np.concatenate([follower._cost(points[i : i + 50], near, 200, yaw[i : i + 50]) for i in range(0, 600, 50)])
     np.testing.assert_allclose(tree, pairs, rtol=1e-12, atol=1e-15)
+
+
+def test_the_followers_check_stops_losing_trials_early_and_still_picks_the_cheapest(limits: CarLimits) -> None:
+    """The simulator check stops driving a trial once its summed cost passes the best so far; its choice must be
+    the one a full drive of every trial gives."""
+    from sim.follower import LineFollower, follower_env
+
+    line = racing_line(load_track("reinvent_base"), limits)
+    follower = LineFollower(line, limits)
+    env = follower_env("reinvent_base", limits)
+    try:
+        env.reset(seed=0, options={"start_index": 0, "reverse": False})
+        physics, profile = env.physics, line.speed
+        for step in range(40):
+            if step % 8 == 7:
+                pose = physics.pose
+                follower._near = follower._nearest(np.array([pose.x, pose.y]), follower._near)
+                plan = follower._plan(physics, profile)
+                trials, saved = follower._trials(physics, plan), physics.snapshot()
+                costs = []
+                for trial in trials:
+                    costs.append(follower._drive_ahead(physics, trial, profile))
+                    physics.restore(saved)
+                assert follower._check(physics, plan, profile) == trials[int(np.argmin(costs))][0]
+            steer, speed = follower.command(physics, 0.0)
+            env.step(np.array([steer, speed], dtype=np.float32))
+    finally:
+        env.close()
+
+
+def test_a_retry_replays_the_steps_its_slower_stretch_leaves_unchanged(limits: CarLimits) -> None:
+    """A retry replays the earlier try's commands up to the first one that read a slowed point of the pace, then
+    plans: the lap must be the one a retry planned from the start drives, and the replay must cover part of it."""
+    from sim.follower import PACE_STEP, LineFollower, _drive, _stretch_before, follower_env
+
+    line = racing_line(load_track("reinvent_base"), limits)
+    env = follower_env("reinvent_base", limits)
+    try:
+        first, record = _drive(env, LineFollower(line, limits))
+        pace = np.ones(len(line.points))
+        pace[_stretch_before(line, line.points[3 * len(line.points) // 4])] *= PACE_STEP
+        fresh, _ = _drive(env, LineFollower(line, limits, pace))
+        replayed, again = _drive(env, LineFollower(line, limits, pace), record)
+    finally:
+        env.close()
+    same = record.same_steps(again.pace)
+    assert 0.3 * len(record.actions) < same < 0.8 * len(record.actions)
+    np.testing.assert_array_equal(replayed.path, fresh.path)
+    assert replayed.lap_time == fresh.lap_time and replayed.status == fresh.status == "lap_complete"
+    assert fresh.lap_time > first.lap_time  # the slowed stretch changed the lap, so the check above could fail
+    assert [len(r) for r in again.reads[:same]] == [len(r) for r in record.reads[:same]]
