@@ -38,13 +38,13 @@ from typing import Any
 from rich.console import Console
 
 from common.car_calibration import load_car
-from common.config import RunConfig
+from common.config import RandomizationConfig, RunConfig
 from common.errors import OptionError
 from common.jsonfile import read_json_object
 from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
-from racer.runconfig import build_run
+from racer.runconfig import build_run, load_randomization
 from sim.reward import example_path
 
 RACE_ACTIONS = [
@@ -91,6 +91,9 @@ class BenchRaceSettings:
     reward_constants: dict[str, float] = field(default_factory=dict)
     """A user's values of the racing example's constants laid over those set to the car (``--reward-constants F``:
     ``{"MARGIN": 0.25}``); checked by :func:`load_reward_constants`."""
+    randomization: str | None = None
+    """A domain-randomization file the rollout workers train with (``--randomization F``: ``{"action_noise":
+    0.1}``, the noise racer's evaluator drives with); None: racer's defaults, no randomization but random starts."""
 
     def race_hyperparams(self) -> dict[str, Any]:
         """What the seeds train with: :data:`RACE_HYPERPARAMS` and the user's keys over them. A user who turns the
@@ -263,17 +266,31 @@ def train_from_scratch(
     return curve, {key: int(last.get(key, 0)) for key in ("rollbacks", "slow_rollbacks")}
 
 
-def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float, constants: dict[str, float]) -> dict[str, Any]:
-    """One seed: ``racer train`` for the budget, then its figures."""
+def seed_run(settings: BenchRaceSettings, seed: int, constants: dict[str, float]) -> tuple[RunConfig, dict[str, bytes]]:
+    """One seed's run and files: the bench's action space and hyperparameters, the racing example with
+    ``constants``, the settings' car and randomization."""
     with tempfile.TemporaryDirectory(prefix="racer-bench-race-") as tmp:
         space, hp = _files(Path(tmp), settings.race_hyperparams())
         reward = str(reward_file(Path(tmp), constants))
-        run, files = build_run(f"bench-race-s{seed}", settings.track, reward, str(space), str(hp), seed=seed)
-    run = run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(settings.car)})})
+        run, files = build_run(
+            f"bench-race-s{seed}", settings.track, reward, str(space), str(hp), settings.randomization, seed=seed
+        )
+    return run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(settings.car)})}), files
+
+
+def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float, constants: dict[str, float]) -> dict[str, Any]:
+    """One seed: ``racer train`` for the budget, then its figures."""
+    run, files = seed_run(settings, seed, constants)
     curve, guard = train_from_scratch(run, files, settings.workers, settings.minutes, settings.eval_starts, race_curve)
     figures = seed_figures(curve, limit_s, settings.minutes * 60.0)
     figures.update(seed=seed, **guard, curve=curve)
     return figures
+
+
+def training_randomization(path: str | None) -> dict[str, Any]:
+    """The domain randomization the seeds train with (racer's defaults where ``path`` is None), as the JSON
+    records it."""
+    return (load_randomization(path) if path else RandomizationConfig()).model_dump(mode="json")
 
 
 def median_known(values: list[float | None]) -> float | None:
@@ -324,6 +341,7 @@ def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> 
         "action_space": RACE_ACTIONS,
         "hyperparams": settings.race_hyperparams(),
         "reward_constants": constants,
+        "randomization": training_randomization(settings.randomization),
         "limit_s": limit_s,
         "computed_limit_s": limit["lap_time_s"],
         "driven_limit_s": limit["driven_lap_time_s"],

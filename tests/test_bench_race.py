@@ -134,6 +134,7 @@ def test_a_user_can_turn_the_benchs_collapse_guard_off(tmp_path) -> None:  # noq
     [
         ("--hyperparams", '{"stack_size": 0}', "stack_size", "0"),
         ("--reward-constants", '{"MARGIN": 0}', "MARGIN", "got 0"),
+        ("--randomization", '{"action_noise": 2}', "action_noise", "2"),
     ],
 )
 def test_a_bad_settings_file_stops_the_bench_before_any_training(tmp_path, option, text, key, value) -> None:  # noqa: ANN001
@@ -222,3 +223,19 @@ def test_a_users_reward_constants_are_laid_over_the_cars_and_written_into_the_ex
         with pytest.raises(OptionError) as err:
             load_reward_constants(bad)
         assert str(bad) in str(err.value) and all(w in str(err.value) for w in words), str(err.value)
+
+
+def test_the_seeds_train_with_the_users_randomization_and_the_json_records_it(tmp_path) -> None:  # noqa: ANN001
+    """``--randomization F``: the workers' env gets the file's settings (racer's defaults otherwise: no action
+    noise), and the bench's JSON records what the seeds trained with."""
+    from racer.bench_race import BenchRaceSettings, example_constants, seed_run, training_randomization
+
+    noisy = tmp_path / "randomization.json"
+    noisy.write_text('{"action_noise": 0.1}')
+    run, _ = seed_run(BenchRaceSettings(car="deepracer-gazebo", randomization=str(noisy)), 1, example_constants())
+    assert run.env.randomization.action_noise == 0.1 and run.env.randomization.random_start
+    assert run.env.car.effects and run.seed == 1
+    plain, _ = seed_run(BenchRaceSettings(), 1, example_constants())
+    assert plain.env.randomization.action_noise == 0.0
+    assert training_randomization(str(noisy))["action_noise"] == 0.1
+    assert training_randomization(None) == plain.env.randomization.model_dump(mode="json")

@@ -186,6 +186,10 @@ def race(
         Path | None,
         typer.Option(help='JSON of the racing example\'s constants over those set to the car: {"MARGIN": 0.25}.'),
     ] = None,
+    randomization: Annotated[
+        Path | None,
+        typer.Option(help='JSON of domain randomization the workers train with: {"action_noise": 0.1}.'),
+    ] = None,
     png: Annotated[Path | None, typer.Option("--png", help="Learning curves with the limit drawn.")] = None,
     json_out: JsonOut = None,
 ) -> None:
@@ -194,6 +198,7 @@ def race(
     from common.hyperparams import HyperparametersError, load_hyperparameters
     from common.jsonfile import read_json_object
     from racer.bench_race import BenchRaceSettings, bench_race, load_reward_constants, plot_race
+    from racer.runconfig import load_randomization
     from sim.track import load_track
 
     seed_numbers = int_list(seeds, "--seeds")
@@ -204,7 +209,19 @@ def race(
         load_hyperparameters(hyperparams)
         overrides = read_json_object(hyperparams, "hyperparameters file", HyperparametersError)
     constants = load_reward_constants(reward_constants) if reward_constants else {}
-    settings = BenchRaceSettings(seed_numbers, minutes, track, car, workers, eval_starts, overrides, constants)
+    if randomization:
+        load_randomization(randomization)
+    settings = BenchRaceSettings(
+        seed_numbers,
+        minutes,
+        track,
+        car,
+        workers,
+        eval_starts,
+        overrides,
+        constants,
+        str(randomization) if randomization else None,
+    )
     result = bench_race(settings, console)
     if png:
         plot_race(result, png)
