@@ -15,7 +15,7 @@ import numpy as np
 
 from common.action_space import load_action_space
 from common.car_calibration import CarCalibration, load_car
-from sim.car_limits import CarLimits, measure_limits
+from sim.car_limits import CarLimits, cached_limits, measure_limits
 from sim.follower import DrivenLap, drive_line
 from sim.physics import SPEED_RANGE_MPS
 from sim.raceline import DEFAULT_MARGIN_M, RacingLine, racing_line
@@ -32,18 +32,27 @@ def max_command_speed(action_space: str | Path | None) -> float:
 
 
 def compute_limit(
-    track: str, car: str = "default", action_space: str | Path | None = None, margin: float = DEFAULT_MARGIN_M
+    track: str,
+    car: str = "default",
+    action_space: str | Path | None = None,
+    margin: float = DEFAULT_MARGIN_M,
+    cache: bool = True,
 ) -> dict[str, Any]:
-    """Measure the car, optimise the line, drive it; the report ``racer limit --json`` writes (with the arrays
-    kept under ``_line`` and ``_driven`` for the picture)."""
+    """Measure the car (or, with ``cache``, take its limits measured before: ``sim.car_limits.cached_limits``),
+    optimise the line, drive it; the report ``racer limit --json`` writes (with the arrays kept under ``_line`` and
+    ``_driven`` for the picture)."""
     started = time.monotonic()
     calibration: CarCalibration = load_car(car)
-    limits = measure_limits(calibration, max_command_speed(action_space))
+    if cache:
+        limits, cached = cached_limits(calibration, max_command_speed(action_space))
+    else:
+        limits, cached = measure_limits(calibration, max_command_speed(action_space)), False
     measured = time.monotonic()
     line = racing_line(load_track(track), limits, margin)
     optimised = time.monotonic()
     driven = drive_line(track, line, limits, calibration)
     report = _report(track, car, margin, limits, line, driven)
+    report["car_limits_cached"] = cached
     report["seconds"] = {
         "measure_car": measured - started,
         "optimise_line": optimised - measured,

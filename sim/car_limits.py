@@ -16,11 +16,18 @@ the way the env drives it:
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
-from dataclasses import asdict, dataclass
+import os
+from dataclasses import asdict, dataclass, fields
+from functools import cache
+from pathlib import Path
 
+import mujoco
 import numpy as np
 
+import common
 from common.car_calibration import CarCalibration
 from sim.physics import MAX_STEERING_DEG, SPEED_RANGE_MPS, WHEELBASE_M, CarPhysics, Pose
 from sim.texture import TextureFrame
@@ -263,3 +270,64 @@ def _steering_time_constant(physics: CarPhysics) -> float:
     target = (1.0 - math.exp(-1.0)) * a[-1]
     k = int(np.argmax(a >= target))  # the first period at or past 63 %; a[0] = 0 is below it
     return float((k - 1 + (target - a[k - 1]) / (a[k] - a[k - 1])) / CONTROL_HZ)
+
+
+CACHE_DIR_ENV = "RACER_CACHE_DIR"
+"""Environment variable naming the folder where measured limits are kept (``$XDG_CACHE_HOME/racer`` or
+``~/.cache/racer`` without it)."""
+
+
+def limits_cache_dir() -> Path:
+    """The folder of :func:`cached_limits`' files."""
+    root = os.environ.get(CACHE_DIR_ENV)
+    if not root:
+        root = str(Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "racer")
+    return Path(root) / "car-limits"
+
+
+@cache
+def _code_digest() -> str:
+    """SHA-256 of what a measurement depends on besides the car: the simulator's and the common package's source,
+    the car model's assets, and the MuJoCo and numpy versions. Any change to them measures again."""
+    digest = hashlib.sha256(f"mujoco {mujoco.__version__} numpy {np.__version__}".encode())
+    for package in (Path(__file__).parent, Path(common.__file__).parent):
+        for path in sorted(package.rglob("*")):
+            if path.is_file() and (path.suffix == ".py" or "assets" in path.parts):
+                digest.update(path.relative_to(package.parent).as_posix().encode())
+                digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def _cache_file(car: CarCalibration, max_command_speed: float, folder: Path) -> Path:
+    key = {
+        "car": car.model_dump(mode="json", exclude={"about"}),  # "about" is informative; the simulator ignores it
+        "max_command_speed": float(max_command_speed),
+        "code": _code_digest(),
+    }
+    return folder / f"{hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()}.json"
+
+
+def cached_limits(
+    car: CarCalibration | None = None, max_command_speed: float = SPEED_RANGE_MPS[1], folder: Path | None = None
+) -> tuple[CarLimits, bool]:
+    """:func:`measure_limits`, or the figures it gave before for the same car, top command and code (and whether
+    they were); kept as JSON in ``folder`` (:func:`limits_cache_dir` by default). Measuring takes 4-8 s of every
+    ``racer limit`` run, the same for every track; a file that does not read back as limits is measured again and
+    replaced, and a folder that cannot be written only costs the measurement."""
+    car = car or CarCalibration()
+    path = _cache_file(car, max_command_speed, folder or limits_cache_dir())
+    try:
+        data = json.loads(path.read_text())
+        if isinstance(data, dict) and set(data) == {f.name for f in fields(CarLimits)}:
+            return CarLimits(**data), True
+    except (OSError, ValueError, TypeError):
+        pass
+    limits = measure_limits(car, max_command_speed)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(limits.to_dict()))
+        tmp.replace(path)  # whole or not at all, also with two runs writing at once
+    except OSError:
+        pass
+    return limits, False

@@ -18,6 +18,16 @@ def pytest_configure(config):
     )
 
 
+@pytest.fixture(scope="session", autouse=True)
+def racer_cache_dir(tmp_path_factory):
+    """The tests' own cache folder (racer limit's measured car limits), for them and the processes they start:
+    never the user's ~/.cache."""
+    with pytest.MonkeyPatch.context() as patch:
+        folder = tmp_path_factory.mktemp("racer-cache")
+        patch.setenv("RACER_CACHE_DIR", str(folder))
+        yield folder
+
+
 @pytest.fixture(scope="session")
 def redis_server():
     """A redis-server started for this test session on a free port; stopped at the end."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -143,12 +144,13 @@ def test_the_racing_line_stays_in_the_corridor_and_beats_the_centre_line(limits:
 
 
 def test_racer_limit_drives_its_limit_within_5_percent(tmp_path: Path) -> None:
-    out, png = tmp_path / "limit.json", tmp_path / "limit.png"
+    out, png, cache = tmp_path / "limit.json", tmp_path / "limit.png", tmp_path / "cache"
     done = subprocess.run(
         [sys.executable, "-m", "racer", "limit", "reinvent_base", "--json", str(out), "--png", str(png)],
         capture_output=True,
         text=True,
         timeout=300,
+        env={**os.environ, "RACER_CACHE_DIR": str(cache)},
     )
     assert done.returncode == 0, done.stderr
     report = json.loads(out.read_text())
@@ -165,6 +167,9 @@ def test_racer_limit_drives_its_limit_within_5_percent(tmp_path: Path) -> None:
     # Its speed (under 30 s a track on one core) is measured with `racer limit` itself (docs/racing.md), not timed
     # here, where a shared machine makes seconds noise: the report only has to say what each part took.
     assert set(report["seconds"]) == {"measure_car", "optimise_line", "drive", "total"}
+    # Measured, not taken from the cache, and kept there for the next run (one JSON file, the limits themselves).
+    assert report["car_limits_cached"] is False
+    assert [json.loads(f.read_text()) for f in cache.glob("car-limits/*.json")] == [report["car_limits"]]
     assert png.stat().st_size > 10_000
     assert "limit" in done.stdout and "driven in the env by a predictive line follower" in done.stdout
 
@@ -342,3 +347,25 @@ def test_a_retry_replays_the_steps_its_slower_stretch_leaves_unchanged(limits: C
     assert replayed.lap_time == fresh.lap_time and replayed.status == fresh.status == "lap_complete"
     assert fresh.lap_time > first.lap_time  # the slowed stretch changed the lap, so the check above could fail
     assert [len(r) for r in again.reads[:same]] == [len(r) for r in record.reads[:same]]
+
+
+def test_measured_limits_are_kept_per_car_and_top_command_and_a_bad_file_is_measured_again(tmp_path: Path) -> None:
+    """``racer limit`` measures a car once (4-8 s of every run): the same car and top command read the figures
+    back; another car or top command measures; a file that is not limits is measured again and replaced; a folder
+    that cannot be written only costs the measurement."""
+    from sim.car_limits import cached_limits
+
+    first, cached = cached_limits(None, 2.0, tmp_path)
+    assert not cached and len(list(tmp_path.glob("*.json"))) == 1
+    again, cached = cached_limits(None, 2.0, tmp_path)
+    assert cached and again == first
+    other, cached = cached_limits(None, 1.5, tmp_path)
+    assert not cached and other.max_command_speed == 1.5 and len(list(tmp_path.glob("*.json"))) == 2
+    for f in tmp_path.glob("*.json"):
+        f.write_text('{"top_speed": "fast"}')
+    redone, cached = cached_limits(None, 2.0, tmp_path)
+    assert not cached and redone == first
+    assert cached_limits(None, 2.0, tmp_path) == (first, True)
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    assert cached_limits(None, 2.0, blocked) == (first, False)

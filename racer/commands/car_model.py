@@ -69,11 +69,15 @@ def limit(
     ] = 0.05,
     png: Annotated[Path | None, typer.Option("--png", help="Write the line coloured by speed over the track.")] = None,
     json_out: Annotated[str | None, json_option("the report")] = None,
+    cache: Annotated[
+        bool,
+        typer.Option(help="Reuse the car's limits measured before for the same car and code ($RACER_CACHE_DIR)."),
+    ] = True,
 ) -> None:
     """The minimum lap time of a car on a track: its racing line and speed profile, and a lap driven on it."""
     from racer.limit import compute_limit, plot_limit, public
 
-    report = compute_limit(track, car, action_space, margin)
+    report = compute_limit(track, car, action_space, margin, cache)
     if png:
         plot_limit(report, png)
     if json_out != "-":
