@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -369,3 +370,21 @@ def test_measured_limits_are_kept_per_car_and_top_command_and_a_bad_file_is_meas
     blocked = tmp_path / "a-file"
     blocked.write_text("")
     assert cached_limits(None, 2.0, blocked) == (first, False)
+
+
+def test_a_car_whose_steering_lags_gets_the_wider_simulator_check() -> None:
+    """±3° for a car whose wheels lag more than 0.25 s (the Gazebo car: within 5 % on 9 loops, not 7), ±2° for one
+    whose wheels follow at once (±3° took the default car 8.4 % over its limit on Bowtie_track)."""
+    from dataclasses import replace
+
+    from sim.follower import CHECK_OFFSETS_DEG, LAGGING_CHECK_OFFSETS_DEG, LineFollower
+
+    quick = flat_limits()
+    line = racing_line(load_track("reinvent_base"), quick)
+    assert LineFollower(line, quick)._offsets == CHECK_OFFSETS_DEG == (-2.0, 0.0, 2.0)
+    lagging = replace(quick, steering_tau_s=0.5)
+    follower = LineFollower(line, lagging)
+    assert follower._offsets == LAGGING_CHECK_OFFSETS_DEG == (-3.0, 0.0, 3.0)
+    follower._last = np.zeros(12)
+    trials = follower._trials(SimpleNamespace(steering_deg=1.0), np.zeros(30))
+    assert len(trials) == 11 and {float(t[0]) for t in trials[:9]} == {-3.0, 0.0, 3.0} and trials[10][0] == 1.0
