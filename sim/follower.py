@@ -17,8 +17,8 @@ Every control period:
 2. **Check** on the simulator itself: the best plan and its neighbours (±2° on either piece; ±3° for a car whose
    steering lags, :data:`LAGGING_CHECK_OFFSETS_DEG`), the previous period's choice one period on, and the wheels
    held where they are, are driven on the env's own physics from a snapshot, with the speed commands the
-   controller would give, and scored the same way; the snapshot is restored after each. The kinematic model misses what the car does between steady states (sliding, load transfer); the
-   simulator does not.
+   controller would give, and scored the same way; the snapshot is restored after each. The kinematic model
+   misses what the car does between steady states (sliding, load transfer); the simulator does not.
 3. The best checked plan's first command is sent.
 
 The speed command is the car's top command where the profile ahead is faster than the car, its lowest where the
