@@ -317,11 +317,11 @@ def cached_limits(
     car = car or CarCalibration()
     path = _cache_file(car, max_command_speed, folder or limits_cache_dir())
     try:
-        data = json.loads(path.read_text())
-        if isinstance(data, dict) and set(data) == {f.name for f in fields(CarLimits)}:
-            return CarLimits(**data), True
+        kept = _limits_from_json(path.read_text())
     except (OSError, ValueError, TypeError):
-        pass
+        kept = None
+    if kept is not None:
+        return kept, True
     limits = measure_limits(car, max_command_speed)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -331,3 +331,15 @@ def cached_limits(
     except OSError:
         pass
     return limits, False
+
+
+def _limits_from_json(text: str) -> CarLimits | None:
+    """The limits in a cache file's text: every field, each a number or a rectangular table of numbers (none NaN;
+    an infinite turning radius is a car that never settles); None where that is not what the text holds."""
+    data = json.loads(text)
+    if not isinstance(data, dict) or set(data) != {f.name for f in fields(CarLimits)}:
+        return None
+    for value in data.values():
+        if isinstance(value, str | bool) or np.isnan(np.asarray(value, dtype=np.float64)).any():
+            return None
+    return CarLimits(**data)

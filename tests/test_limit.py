@@ -362,10 +362,19 @@ def test_measured_limits_are_kept_per_car_and_top_command_and_a_bad_file_is_meas
     assert cached and again == first
     other, cached = cached_limits(None, 1.5, tmp_path)
     assert not cached and other.max_command_speed == 1.5 and len(list(tmp_path.glob("*.json"))) == 2
-    for f in tmp_path.glob("*.json"):
-        f.write_text('{"top_speed": "fast"}')
-    redone, cached = cached_limits(None, 2.0, tmp_path)
-    assert not cached and redone == first
+    bad = [
+        '{"top_speed": "fast"}',  # a field alone
+        json.dumps({**first.to_dict(), "top_speed": "fast"}),  # every field, one not a number
+        json.dumps({**first.to_dict(), "accel": [[1.0], [2.0, 3.0]]}),  # a table that is not one
+        json.dumps({**first.to_dict(), "brake": None}),
+        "[1, 2]",
+        "not json",
+    ]
+    for text in bad:
+        for f in tmp_path.glob("*.json"):
+            f.write_text(text)
+        redone, cached = cached_limits(None, 2.0, tmp_path)
+        assert not cached and redone == first, text
     assert cached_limits(None, 2.0, tmp_path) == (first, True)
     blocked = tmp_path / "a-file"
     blocked.write_text("")
