@@ -27,11 +27,12 @@ profile's speed a little ahead (the command acts on the next control period and 
 by the car's speed-per-command ratio (its wheels slip slightly).
 
 Measured on the 11 bundled loops (docs/racing.md, ``racer limit``): the default car is driven within 4.5 % of its
-limit on each; the Gazebo car finishes each at the first try, within 5 % on 9 (2026-11-27). Driven at its limit a
-car may still leave the track in one bend and not on a second try a little slower there: ``drive_line`` slows the
-stretch before the place where a try left the track and tries again (:data:`PACE_STEP`), so the rest of the lap
-keeps the profile's speeds; a retry replays the earlier try's commands up to where its slower stretch is first read
-(:meth:`TryRecord.same_steps`)."""
+limit on each; the Gazebo car finishes each, within 5 % on 9 at the first try on one machine and on 7 on another
+(2026-11-27: its lap at the limit turns the CPUs' last-digit differences in the line into different laps). Driven at
+its limit a car may still leave the track in one bend and not on a second try a little slower there: ``drive_line``
+slows the stretch before the place where a try left the track and tries again (:data:`PACE_STEP`), so the rest of
+the lap keeps the profile's speeds; a retry replays the earlier try's commands up to where its slower stretch is
+first read (:meth:`TryRecord.same_steps`)."""
 
 from __future__ import annotations
 
