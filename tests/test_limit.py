@@ -346,7 +346,9 @@ def test_a_retry_replays_the_steps_its_slower_stretch_leaves_unchanged(limits: C
     assert 0.3 * len(record.actions) < same < 0.8 * len(record.actions)
     np.testing.assert_array_equal(replayed.path, fresh.path)
     assert replayed.lap_time == fresh.lap_time and replayed.status == fresh.status == "lap_complete"
-    assert fresh.lap_time > first.lap_time  # the slowed stretch changed the lap, so the check above could fail
+    # The slowed stretch changed the lap, so the checks above could fail. Its path, not its time: at the limit a
+    # slower stretch may give a faster lap (measured: 5.80 s against 5.87 s on an Intel Xeon, slower on an AMD EPYC).
+    assert not np.array_equal(fresh.path, first.path)
     assert [len(r) for r in again.reads[:same]] == [len(r) for r in record.reads[:same]]
 
 
