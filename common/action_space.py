@@ -14,7 +14,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from common.errors import UserError
+from common.errors import UserError, validation_error_line
 from common.jsonfile import read_json_object
 from common.sensors import FRONT_FACING_CAMERA, LEGACY_CAMERA, SUPPORTED_COMBINATIONS, sensor_problem
 
@@ -238,7 +238,6 @@ def load_action_space(path: str | Path) -> ActionSpace:
         member = "ContinuousSpace" if data.get("action_space_type") == "continuous" else "list[DiscreteAction]"
         errors = exc.errors()
         err = next((e for e in errors if member in [str(v) for v in e["loc"]]), errors[0])
-        where = ".".join(str(v) for v in err["loc"]) or "file"
-        raise ActionSpaceError(f"action space file {str(p)!r}: {where}: {err['msg']}") from None
+        raise ActionSpaceError(f"action space file {str(p)!r}: {validation_error_line(err)}") from None
     check_supported(space, f"action space file {str(p)!r}")
     return space

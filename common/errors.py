@@ -26,8 +26,12 @@ def one_line(exc: BaseException) -> str:
 
 def first_validation_error(exc: Exception) -> str:
     """``<key>: <reason> (got <value>)`` for the first error of a ``pydantic.ValidationError``."""
-    first = exc.errors()[0]  # type: ignore[attr-defined]
-    where = ".".join(str(part) for part in first.get("loc", ())) or "(top level)"
-    got = repr(first.get("input"))
+    return validation_error_line(exc.errors()[0])  # type: ignore[attr-defined]
+
+
+def validation_error_line(error: dict) -> str:
+    """``<key>: <reason> (got <value>)`` for one entry of a ``pydantic.ValidationError``'s ``errors()``."""
+    where = ".".join(str(part) for part in error.get("loc", ())) or "(top level)"
+    got = repr(error.get("input"))
     got = got if len(got) <= 60 else got[:57] + "..."
-    return f"{where}: {first.get('msg', 'invalid')} (got {got})"
+    return f"{where}: {error.get('msg', 'invalid')} (got {got})"

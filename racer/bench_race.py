@@ -94,6 +94,13 @@ class BenchRaceSettings:
     randomization: str | None = None
     """A domain-randomization file the rollout workers train with (``--randomization F``: ``{"action_noise":
     0.1}``, the noise racer's evaluator drives with); None: racer's defaults, no randomization but random starts."""
+    actions: list[dict[str, float]] | None = None
+    """A user's discrete action space (``--action-space F``, read by :func:`load_race_actions`); None:
+    :data:`RACE_ACTIONS`. The limit, the reward example's ``MAX_SPEED`` and the seeds all use it."""
+
+    def race_actions(self) -> list[dict[str, float]]:
+        """The action space the seeds train with and the limit is computed for."""
+        return RACE_ACTIONS if self.actions is None else self.actions
 
     def race_hyperparams(self) -> dict[str, Any]:
         """What the seeds train with: :data:`RACE_HYPERPARAMS` and the user's keys over them. A user who turns the
@@ -105,16 +112,16 @@ class BenchRaceSettings:
         return {**bench, **self.hyperparams}
 
 
-def reward_constants(car_limits: dict[str, Any]) -> dict[str, float]:
+def reward_constants(car_limits: dict[str, Any], actions: list[dict[str, float]] | None = None) -> dict[str, float]:
     """The racing example's MAX_SPEED, LATERAL_ACCEL and BRAKE for a car (``racer limit``'s ``car_limits``): the
-    action space's top speed, and :data:`REWARD_SHARE_OF_LIMIT` of the median lateral acceleration the car holds
+    action space's top speed (``actions``, :data:`RACE_ACTIONS` where None), and :data:`REWARD_SHARE_OF_LIMIT` of the median lateral acceleration the car holds
     from 2 m/s up and of its median braking from 1 m/s up. Without this the Gazebo car (3.2 m/s² of lateral grip)
     was asked for the default car's bend speeds, and one seed never lapped robustly in 30 minutes."""
     speeds = car_limits["speeds"]
     lateral = [a for v, a in zip(speeds, car_limits["max_lateral_accel"], strict=True) if v >= 2.0]
     brake = [b for v, b in zip(speeds, car_limits["brake"], strict=True) if v >= 1.0]
     return {
-        "MAX_SPEED": max(a["speed"] for a in RACE_ACTIONS),
+        "MAX_SPEED": max(a["speed"] for a in (RACE_ACTIONS if actions is None else actions)),
         "LATERAL_ACCEL": round(REWARD_SHARE_OF_LIMIT * statistics.median(lateral), 2),
         "BRAKE": round(REWARD_SHARE_OF_LIMIT * statistics.median(brake), 2),
     }
@@ -162,9 +169,26 @@ def reward_file(folder: Path, constants: dict[str, float]) -> Path:
     return path
 
 
-def _files(folder: Path, hyperparams: dict[str, Any] | None = None) -> tuple[Path, Path]:
+def load_race_actions(path: str | Path) -> list[dict[str, float]]:
+    """A DeepRacer model_metadata.json's discrete actions as ``{"steering_angle", "speed"}`` pairs; otherwise
+    :class:`ActionSpaceError` naming the file (the bench's reward example and curves are set for a discrete space)."""
+    from common.action_space import ActionSpaceError, load_action_space
+
+    space = load_action_space(path)
+    if not space.discrete:
+        raise ActionSpaceError(
+            f"action space file {str(path)!r}: action_space_type: racer bench race takes a discrete action space, "
+            f"got {space.action_space_type!r}"
+        )
+    return [{"steering_angle": a.steering_angle, "speed": a.speed} for a in space.action_space]  # type: ignore[union-attr]
+
+
+def _files(
+    folder: Path, hyperparams: dict[str, Any] | None = None, actions: list[dict[str, float]] | None = None
+) -> tuple[Path, Path]:
     space, hp = folder / "model_metadata.json", folder / "hyperparameters.json"
-    space.write_text(json.dumps({"action_space": RACE_ACTIONS, "action_space_type": "discrete"}))
+    listed = RACE_ACTIONS if actions is None else actions
+    space.write_text(json.dumps({"action_space": listed, "action_space_type": "discrete"}))
     hp.write_text(json.dumps(RACE_HYPERPARAMS if hyperparams is None else hyperparams))
     return space, hp
 
@@ -270,7 +294,7 @@ def seed_run(settings: BenchRaceSettings, seed: int, constants: dict[str, float]
     """One seed's run and files: the bench's action space and hyperparameters, the racing example with
     ``constants``, the settings' car and randomization."""
     with tempfile.TemporaryDirectory(prefix="racer-bench-race-") as tmp:
-        space, hp = _files(Path(tmp), settings.race_hyperparams())
+        space, hp = _files(Path(tmp), settings.race_hyperparams(), settings.race_actions())
         reward = str(reward_file(Path(tmp), constants))
         run, files = build_run(
             f"bench-race-s{seed}", settings.track, reward, str(space), str(hp), settings.randomization, seed=seed
@@ -304,10 +328,10 @@ def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> 
     from racer.limit import compute_limit
 
     with tempfile.TemporaryDirectory() as tmp:
-        space, _ = _files(Path(tmp))
+        space, _ = _files(Path(tmp), actions=settings.race_actions())
         limit = compute_limit(settings.track, settings.car, space)
     limit_s = float(limit["best_known_lap_s"])
-    constants = {**reward_constants(limit["car_limits"]), **settings.reward_constants}
+    constants = {**reward_constants(limit["car_limits"], settings.race_actions()), **settings.reward_constants}
     if progress:
         progress.print(f"limit on {settings.track} for car {settings.car}: {limit_s:.2f} s", highlight=False)
         progress.print(f"reward example's constants for this car: {constants}", highlight=False)
@@ -338,7 +362,7 @@ def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> 
         "minutes": settings.minutes,
         "workers": settings.workers,
         "eval_starts": settings.eval_starts,
-        "action_space": RACE_ACTIONS,
+        "action_space": settings.race_actions(),
         "hyperparams": settings.race_hyperparams(),
         "reward_constants": constants,
         "randomization": training_randomization(settings.randomization),

@@ -135,6 +135,14 @@ def test_a_user_can_turn_the_benchs_collapse_guard_off(tmp_path) -> None:  # noq
         ("--hyperparams", '{"stack_size": 0}', "stack_size", "0"),
         ("--reward-constants", '{"MARGIN": 0}', "MARGIN", "got 0"),
         ("--randomization", '{"action_noise": 2}', "action_noise", "2"),
+        ("--action-space", '{"action_space": [{"steering_angle": 0, "speed": "fast"}]}', "speed", "fast"),
+        (
+            "--action-space",
+            '{"action_space_type": "continuous", "action_space": {"steering_angle": {"low": -30, "high": 30}, '
+            '"speed": {"low": 1, "high": 4}}}',
+            "action_space_type",
+            "continuous",
+        ),
     ],
 )
 def test_a_bad_settings_file_stops_the_bench_before_any_training(tmp_path, option, text, key, value) -> None:  # noqa: ANN001
@@ -239,3 +247,30 @@ def test_the_seeds_train_with_the_users_randomization_and_the_json_records_it(tm
     assert plain.env.randomization.action_noise == 0.0
     assert training_randomization(str(noisy))["action_noise"] == 0.1
     assert training_randomization(None) == plain.env.randomization.model_dump(mode="json")
+
+
+def test_the_seeds_train_with_the_users_action_space_and_the_example_tops_at_its_speed(tmp_path) -> None:  # noqa: ANN001
+    """``--action-space F``: a discrete space's actions go to the seeds' model_metadata.json, the reward example's
+    MAX_SPEED is the space's top speed, and the default stays the bench's 4 m/s space."""
+    from common.action_space import load_action_space
+    from racer.bench_race import (
+        RACE_ACTIONS,
+        BenchRaceSettings,
+        example_constants,
+        load_race_actions,
+        reward_constants,
+        seed_run,
+    )
+
+    actions = [{"steering_angle": s, "speed": v} for v in (1.5, 3.5) for s in (-12.0, -4.0, 0.0, 4.0, 12.0)]
+    path = tmp_path / "model_metadata.json"
+    path.write_text(json.dumps({"action_space": actions, "action_space_type": "discrete", "version": "5"}))
+    assert load_race_actions(path) == actions
+    settings = BenchRaceSettings(actions=load_race_actions(path))
+    _, files = seed_run(settings, 0, example_constants())
+    (tmp_path / "written.json").write_bytes(files["model_metadata.json"])
+    written = load_action_space(tmp_path / "written.json").action_space
+    assert [(a.steering_angle, a.speed) for a in written] == [(a["steering_angle"], a["speed"]) for a in actions]
+    limits = {"speeds": [1.0, 2.0, 3.0], "max_lateral_accel": [3.0, 3.0, 3.0], "brake": [4.0, 4.0, 4.0]}
+    assert reward_constants(limits, settings.race_actions())["MAX_SPEED"] == 3.5
+    assert BenchRaceSettings().race_actions() == RACE_ACTIONS and reward_constants(limits)["MAX_SPEED"] == 4.0

@@ -190,6 +190,10 @@ def race(
         Path | None,
         typer.Option(help='JSON of domain randomization the workers train with: {"action_noise": 0.1}.'),
     ] = None,
+    action_space: Annotated[
+        Path | None,
+        typer.Option("--action-space", help="model_metadata.json with a discrete action space (default: 4 m/s, 15)."),
+    ] = None,
     png: Annotated[Path | None, typer.Option("--png", help="Learning curves with the limit drawn.")] = None,
     json_out: JsonOut = None,
 ) -> None:
@@ -197,7 +201,7 @@ def race(
     from common.car_calibration import load_car
     from common.hyperparams import HyperparametersError, load_hyperparameters
     from common.jsonfile import read_json_object
-    from racer.bench_race import BenchRaceSettings, bench_race, load_reward_constants, plot_race
+    from racer.bench_race import BenchRaceSettings, bench_race, load_race_actions, load_reward_constants, plot_race
     from racer.runconfig import load_randomization
     from sim.track import load_track
 
@@ -211,6 +215,7 @@ def race(
     constants = load_reward_constants(reward_constants) if reward_constants else {}
     if randomization:
         load_randomization(randomization)
+    actions = load_race_actions(action_space) if action_space else None
     settings = BenchRaceSettings(
         seed_numbers,
         minutes,
@@ -221,6 +226,7 @@ def race(
         overrides,
         constants,
         str(randomization) if randomization else None,
+        actions,
     )
     result = bench_race(settings, console)
     if png:
