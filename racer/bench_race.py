@@ -114,9 +114,10 @@ class BenchRaceSettings:
 
 def reward_constants(car_limits: dict[str, Any], actions: list[dict[str, float]] | None = None) -> dict[str, float]:
     """The racing example's MAX_SPEED, LATERAL_ACCEL and BRAKE for a car (``racer limit``'s ``car_limits``): the
-    action space's top speed (``actions``, :data:`RACE_ACTIONS` where None), and :data:`REWARD_SHARE_OF_LIMIT` of the median lateral acceleration the car holds
-    from 2 m/s up and of its median braking from 1 m/s up. Without this the Gazebo car (3.2 m/s² of lateral grip)
-    was asked for the default car's bend speeds, and one seed never lapped robustly in 30 minutes."""
+    action space's top speed (``actions``, :data:`RACE_ACTIONS` where None), and :data:`REWARD_SHARE_OF_LIMIT` of
+    the median lateral acceleration the car holds from 2 m/s up and of its median braking from 1 m/s up. Without
+    this the Gazebo car (3.2 m/s² of lateral grip) was asked for the default car's bend speeds, and one seed never
+    lapped robustly in 30 minutes."""
     speeds = car_limits["speeds"]
     lateral = [a for v, a in zip(speeds, car_limits["max_lateral_accel"], strict=True) if v >= 2.0]
     brake = [b for v, b in zip(speeds, car_limits["brake"], strict=True) if v >= 1.0]
