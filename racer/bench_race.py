@@ -173,7 +173,7 @@ def reward_file(folder: Path, constants: dict[str, float]) -> Path:
 def load_race_actions(path: str | Path) -> list[dict[str, float]]:
     """A DeepRacer model_metadata.json's discrete actions as ``{"steering_angle", "speed"}`` pairs; otherwise
     :class:`ActionSpaceError` naming the file (the bench's reward example and curves are set for a discrete space)."""
-    from common.action_space import ActionSpaceError, load_action_space
+    from common.action_space import ActionSpace, ActionSpaceError, load_action_space
 
     space = load_action_space(path)
     if not space.discrete:
@@ -181,6 +181,13 @@ def load_race_actions(path: str | Path) -> list[dict[str, float]]:
             f"action space file {str(path)!r}: action_space_type: racer bench race takes a discrete action space, "
             f"got {space.action_space_type!r}"
         )
+    bench = ActionSpace(action_space=space.action_space)
+    for key in ("sensor", "neural_network"):  # the bench trains only the actions; say so rather than drop the rest
+        if getattr(space, key) != getattr(bench, key):
+            raise ActionSpaceError(
+                f"action space file {str(path)!r}: {key}: racer bench race trains {getattr(bench, key)!r} and takes "
+                f"only the actions from this file, got {getattr(space, key)!r}"
+            )
     return [{"steering_angle": a.steering_angle, "speed": a.speed} for a in space.action_space]  # type: ignore[union-attr]
 
 

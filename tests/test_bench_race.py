@@ -143,6 +143,12 @@ def test_a_user_can_turn_the_benchs_collapse_guard_off(tmp_path) -> None:  # noq
             "action_space_type",
             "continuous",
         ),
+        (
+            "--action-space",
+            '{"action_space": [{"steering_angle": 0, "speed": 2}], "sensor": ["STEREO_CAMERAS"]}',
+            "sensor",
+            "STEREO_CAMERAS",
+        ),
     ],
 )
 def test_a_bad_settings_file_stops_the_bench_before_any_training(tmp_path, option, text, key, value) -> None:  # noqa: ANN001
