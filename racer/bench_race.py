@@ -112,9 +112,9 @@ class BenchRaceSettings:
         return {**bench, **self.hyperparams}
 
 
-def reward_constants(car_limits: dict[str, Any], actions: list[dict[str, float]] | None = None) -> dict[str, float]:
+def reward_constants(car_limits: dict[str, Any], actions: list[dict[str, float]] = RACE_ACTIONS) -> dict[str, float]:
     """The racing example's MAX_SPEED, LATERAL_ACCEL and BRAKE for a car (``racer limit``'s ``car_limits``): the
-    action space's top speed (``actions``, :data:`RACE_ACTIONS` where None), and :data:`REWARD_SHARE_OF_LIMIT` of
+    action space's top speed (``actions``), and :data:`REWARD_SHARE_OF_LIMIT` of
     the median lateral acceleration the car holds from 2 m/s up and of its median braking from 1 m/s up. Without
     this the Gazebo car (3.2 m/s² of lateral grip) was asked for the default car's bend speeds, and one seed never
     lapped robustly in 30 minutes."""
@@ -122,7 +122,7 @@ def reward_constants(car_limits: dict[str, Any], actions: list[dict[str, float]]
     lateral = [a for v, a in zip(speeds, car_limits["max_lateral_accel"], strict=True) if v >= 2.0]
     brake = [b for v, b in zip(speeds, car_limits["brake"], strict=True) if v >= 1.0]
     return {
-        "MAX_SPEED": max(a["speed"] for a in (RACE_ACTIONS if actions is None else actions)),
+        "MAX_SPEED": max(a["speed"] for a in actions),
         "LATERAL_ACCEL": round(REWARD_SHARE_OF_LIMIT * statistics.median(lateral), 2),
         "BRAKE": round(REWARD_SHARE_OF_LIMIT * statistics.median(brake), 2),
     }
@@ -192,11 +192,10 @@ def load_race_actions(path: str | Path) -> list[dict[str, float]]:
 
 
 def _files(
-    folder: Path, hyperparams: dict[str, Any] | None = None, actions: list[dict[str, float]] | None = None
+    folder: Path, hyperparams: dict[str, Any] | None = None, actions: list[dict[str, float]] = RACE_ACTIONS
 ) -> tuple[Path, Path]:
     space, hp = folder / "model_metadata.json", folder / "hyperparameters.json"
-    listed = RACE_ACTIONS if actions is None else actions
-    space.write_text(json.dumps({"action_space": listed, "action_space_type": "discrete"}))
+    space.write_text(json.dumps({"action_space": actions, "action_space_type": "discrete"}))
     hp.write_text(json.dumps(RACE_HYPERPARAMS if hyperparams is None else hyperparams))
     return space, hp
 
