@@ -3,6 +3,8 @@
 The trainer's update is most of the time to a lap (docs/speed.md), so this is the figure its settings are
 chosen by: the trunk's precision (fp32 or bf16 autocast) and Adam's per-parameter loop or its fused kernel.
 All settings are timed in one process, interleaved run by run, so that a noisy machine affects them alike.
+``auto`` is the precision ``racer train --precision auto`` would train in here (fused Adam, as the trainer uses):
+the faster fused setting of those that run natively (``trainer.precision``).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import torch
 
 from common.policy import build_policy
 from trainer.ppo import PPOBatch, minibatch_step
+from trainer.precision import fastest, precision_candidates
 
 SETTINGS: tuple[tuple[str, bool], ...] = (("fp32", False), ("fp32", True), ("bf16", False), ("bf16", True))
 """(precision, fused Adam) pairs; the first is the trainer before this benchmark existed."""
@@ -52,7 +55,9 @@ def bench_update(threads: int = 2, batch: int = 64, steps: int = 10, repeats: in
                 minibatch_step(model, opt, mb, 0.2, 0.01, 0.5, "huber", 0.5)
             runs[name].append((time.perf_counter() - t0) / steps * 1e3)
     base = statistics.median(runs["fp32"])
+    fused = {p: statistics.median(runs[f"{p}-fused"]) for p in precision_candidates("auto")}
     return {
+        "auto": fastest(fused),
         "threads": threads,
         "batch": batch,
         "ms_per_step": {name: statistics.median(v) for name, v in runs.items()},

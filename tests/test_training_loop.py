@@ -8,13 +8,14 @@ import redis
 import torch
 
 from common.keys import Keys
-from common.policy import checkpoint_from_bytes
+from common.policy import bf16_is_fast, checkpoint_from_bytes
 from common.protocol import PolicyVersion
 from model_store import RunStore, open_store
 from model_store.runs import METRICS_FILE
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
 from tests.conftest import S3_BUCKET
+from trainer.precision import fastest
 from trainer.process import Trainer, TrainerOptions
 
 
@@ -80,6 +81,15 @@ def test_an_iteration_publishes_a_version_the_worker_switches_to(redis_url, run_
     for name, tensor in trainer.model.state_dict().items():
         assert torch.equal(tensor, worker.model.state_dict()[name]), name
     assert worker.poll_policy() is False  # nothing newer
+    # precision auto: where bf16 is native both were timed before this first update and the faster kept for good.
+    status = trainer.status()
+    if bf16_is_fast():
+        assert set(status["precision_ms"]) == {"fp32", "bf16"}
+        assert status["precision"] == fastest(status["precision_ms"]) and trainer.precision_choices == (
+            status["precision"],
+        )
+    else:
+        assert status["precision_ms"] == {} and status["precision"] == "fp32"
     worker.close()
 
 

@@ -1,4 +1,5 @@
-"""The trainer's speed settings (fused Adam, bf16 trunk) keep PPO's arithmetic; racer bench update runs."""
+"""The trainer's speed settings (fused Adam, bf16 trunk) keep PPO's arithmetic; ``auto`` precision times both and
+keeps the faster; racer bench update runs."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ import torch
 from common.policy import bf16_is_fast, build_policy
 from racer.bench_update import bench_update
 from trainer.ppo import PPOBatch, minibatch_step
-from trainer.process import make_optimizer, resolve_precision
+from trainer.precision import fastest, precision_candidates, time_precisions
+from trainer.process import make_optimizer
 
 DISCRETE = {"kind": "discrete", "n": 10}
 
@@ -86,10 +88,11 @@ def test_bf16_update_learns_like_fp32() -> None:
 
 
 def test_precision_names() -> None:
-    assert resolve_precision("auto") == ("bf16" if bf16_is_fast() else "fp32")
-    assert resolve_precision("fp32") == "fp32" and resolve_precision("bf16") == "bf16"
+    # auto: both where bf16 is native (then timed), fp32 alone where bf16 would be emulated (always slower).
+    assert precision_candidates("auto") == (("fp32", "bf16") if bf16_is_fast() else ("fp32",))
+    assert precision_candidates("fp32") == ("fp32",) and precision_candidates("bf16") == ("bf16",)
     with pytest.raises(ValueError, match="'fp16'"):
-        resolve_precision("fp16")
+        precision_candidates("fp16")
     with pytest.raises(ValueError, match="'half'"):
         build_policy((120, 160, 1), DISCRETE).set_trunk_precision("half")  # type: ignore[arg-type]
 
@@ -100,3 +103,29 @@ def test_bench_update_times_every_setting() -> None:
     assert all(ms > 0 for ms in result["ms_per_step"].values())
     assert all(len(v) == 2 for v in result["ms_per_step_runs"].values())
     assert result["speedup_vs_fp32_loop"]["fp32"] == pytest.approx(1.0)
+    fused = {p: result["ms_per_step"][f"{p}-fused"] for p in precision_candidates("auto")}
+    assert result["auto"] == fastest(fused)
+
+
+def test_fastest_precision_is_the_one_with_fewest_ms_and_fp32_on_a_tie() -> None:
+    assert fastest({"fp32": 64.6, "bf16": 87.0}) == "fp32"  # this project's Intel Xeon with AVX512-BF16, no AMX
+    assert fastest({"fp32": 66.3, "bf16": 40.3}) == "bf16"  # its AMD EPYC
+    assert fastest({"bf16": 50.0, "fp32": 50.0}) == "fp32"
+    assert fastest({"bf16": 50.0}) == "bf16"
+    with pytest.raises(ValueError, match="no precision"):
+        fastest({})
+
+
+def test_timing_the_precisions_leaves_the_model_and_the_random_state_alone() -> None:
+    model, _ = _twin_models()
+    model.eval()
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    torch.manual_seed(7)
+    expected_draw = torch.rand(3)
+    torch.manual_seed(7)
+    ms = time_precisions(model, _batch(8), ("fp32", "bf16"), (0.2, 0.01, 0.5, "huber", 0.5))
+    assert set(ms) == {"fp32", "bf16"} and all(v > 0 for v in ms.values())
+    assert torch.equal(torch.rand(3), expected_draw)
+    assert not model.training and model.trunk_dtype is None
+    for key, value in model.state_dict().items():
+        assert torch.equal(value, before[key]), key

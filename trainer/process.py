@@ -29,12 +29,11 @@ from typing import NamedTuple
 import torch
 
 from common.bus import Bus
-from common.config import PretrainedError, RunConfig, check_precision
+from common.config import PretrainedError, RunConfig
 from common.policy import (
     ActorCritic,
     Precision,
     action_space_spec,
-    bf16_is_fast,
     build_policy,
     checkpoint_from_bytes,
     checkpoint_to_bytes,
@@ -52,6 +51,7 @@ from model_store.localize import localize_env
 from model_store.runs import METRICS_FILE, checkpoint_key, evaluation_name, local_run_dir
 from sim.env import RacerEnv
 from trainer.ppo import PPOBatch, compute_gae, scheduled, update
+from trainer.precision import fastest, precision_candidates, time_precisions
 
 log = logging.getLogger("racer.trainer")
 
@@ -80,8 +80,8 @@ class TrainerOptions:
     outage_s: float = DEFAULT_GIVE_UP_S
     """How long to ride out one Redis or store outage before exiting with an error, seconds."""
     precision: str = "auto"
-    """The trunk's arithmetic in PPO updates: ``fp32``, ``bf16``, or ``auto`` (bf16 where the CPU or GPU runs it
-    natively, see ``common.policy.bf16_is_fast``). Checkpoints are float32 either way."""
+    """The trunk's arithmetic in PPO updates: ``fp32``, ``bf16``, or ``auto`` (where bf16 runs natively, both are
+    timed on the first batch and the faster is kept: ``trainer.precision``). Checkpoints are float32 either way."""
 
 
 SEEN_SEGMENTS = 4096
@@ -283,7 +283,8 @@ class Trainer:
             self.version,
             self.runs.store.uri,
             redact(self.opts.redis_url),
-            self.precision,
+            " or ".join(self.precision_choices)
+            + (" (the faster, timed on the first batch)" if len(self.precision_choices) > 1 else ""),
             torch.get_num_threads(),
         )
 
@@ -309,7 +310,11 @@ class Trainer:
         probe.close()
         torch.manual_seed(self.run.seed)
         self.model: ActorCritic = build_policy(self.obs_shape, spec, self.run.policy, sensors)
-        self.precision = resolve_precision(self.opts.precision)
+        self.precision_choices = precision_candidates(self.opts.precision)
+        """Precisions still in the running: more than one until the first update times them (``auto``)."""
+        self.precision: Precision = self.precision_choices[0]
+        self.precision_ms: dict[str, float] = {}
+        """Milliseconds per minibatch step of each precision timed (empty where only one could run)."""
         self.model.set_trunk_precision(self.precision)
         self.optimizer = make_optimizer(self.model, self.hp.lr, self.run.policy.l2)
         self.generator = torch.Generator().manual_seed(self.run.seed)
@@ -485,6 +490,7 @@ class Trainer:
         self.buffer = []
         self._set_lr(self.learning_rate())
         beta_entropy = self.entropy_coef()
+        self._choose_precision(batch, beta_entropy)
         self.model.train()
         result = update(
             self.model,
@@ -510,6 +516,21 @@ class Trainer:
         self._record(result, episodes, lags, batch, time.monotonic() - t0)
         log.info("iteration %d: version %d, %s", self.stats.iteration, self.version, result)
         return result
+
+    def _choose_precision(self, batch: PPOBatch, beta_entropy: float) -> None:
+        """``auto`` on a CPU with native bf16: before the first update, time both precisions on a copy of the
+        network and the batch's first minibatch, and train in the faster from then on."""
+        if len(self.precision_choices) < 2:
+            return
+        hp = self.hp
+        minibatch = batch.select(torch.arange(min(len(batch), hp.batch_size)))
+        step_args = (hp.clip_epsilon, beta_entropy, hp.value_loss_coef, hp.value_loss_kind, hp.max_grad_norm)
+        self.precision_ms = time_precisions(self.model, minibatch, self.precision_choices, step_args, hp.lr)
+        self.precision = fastest(self.precision_ms)
+        self.precision_choices = (self.precision,)
+        self.model.set_trunk_precision(self.precision)
+        timings = ", ".join(f"{p} {ms:.1f} ms" for p, ms in self.precision_ms.items())
+        log.info("PPO updates in %s: the faster per minibatch step on this machine (%s)", self.precision, timings)
 
     def learning_rate(self) -> float:
         """The learning rate of the next policy update: the schedule's value (``lr`` itself when constant, as in
@@ -722,6 +743,7 @@ class Trainer:
             "rollbacks": self.stability.rollbacks,
             "slow_rollbacks": self.stability.slow_rollbacks,
             "precision": self.precision,
+            "precision_ms": dict(self.precision_ms),
             "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             "time": time.time(),
         }
@@ -757,13 +779,6 @@ class Trainer:
             if self.silent.pop(wid, None) is not None:
                 log.warning("worker %s is sending heartbeats again", wid)
         self.live.update(alive)
-
-
-def resolve_precision(precision: str) -> Precision:
-    """``auto`` → ``bf16`` where it runs natively, else ``fp32``; ``fp32``/``bf16`` as given."""
-    if check_precision(precision) == "auto":
-        return "bf16" if bf16_is_fast() else "fp32"
-    return precision  # type: ignore[return-value]
 
 
 def make_optimizer(model: torch.nn.Module, lr: float, l2: float) -> torch.optim.Adam:

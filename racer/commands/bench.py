@@ -296,6 +296,7 @@ def update(
     for name, ms in result["ms_per_step"].items():
         table.add_row(name, f"{ms:.1f}", f"{result['speedup_vs_fp32_loop'][name]:.2f}×")
     console.print(table)
+    console.print(f"racer train --precision auto trains in {result['auto']} on this machine")
     write_json(result, json_out)
 
 

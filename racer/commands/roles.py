@@ -32,7 +32,10 @@ def trainer(
     threads: Annotated[int, typer.Option(min=1, envvar="RACER_TRAINER_THREADS", help="PyTorch threads.")] = 1,
     precision: Annotated[
         str,
-        typer.Option(envvar="RACER_PRECISION", help="PPO update arithmetic: auto (bf16 where native), fp32, bf16."),
+        typer.Option(
+            envvar="RACER_PRECISION",
+            help="PPO update arithmetic: auto (the faster of fp32 and native bf16, timed), fp32, bf16.",
+        ),
     ] = "auto",
     outage_timeout: Outage = "10m",
     verbose: Verbose = False,

@@ -50,7 +50,10 @@ def train(
         int | None, typer.Option(min=1, help="Stop after K consecutive checkpoints complete every evaluation lap.")
     ] = None,
     precision: Annotated[
-        str, typer.Option(help="The trainer's PPO update arithmetic: auto (bf16 where native), fp32, bf16.")
+        str,
+        typer.Option(
+            help="The trainer's PPO update arithmetic: auto (the faster of fp32 and native bf16, timed), fp32, bf16."
+        ),
     ] = "auto",
     from_drfc: FromDrfc = None,
     race_type: RaceTypeOpt = None,

@@ -1,0 +1,88 @@
+"""The arithmetic of the trainer's PPO updates: the trunk in fp32, or in bf16 under autocast.
+
+``auto`` measures rather than guesses. A CPU with native bf16 kernels (AVX512-BF16 or AMX) is not always faster in
+bf16: on the 2-core AMD EPYC this project was first measured on, a bf16 minibatch step took 40 ms against 66 ms in
+fp32, but on an Intel Xeon with AVX512-BF16 and no AMX (2026-11-27, ``racer bench update`` and DeepRacer's shallow
+network on three stacked frames) it took 87-97 ms against 64-69 ms, so picking bf16 for the flag alone made every
+update there about 1.4 times slower. Where both can run natively, the trainer times a few minibatch steps of each
+on a copy of its own network and its first batch, under the threads and load it trains with, and keeps the faster.
+Where bf16 would be emulated (no native kernels) it is always slower, and fp32 is used without a measurement.
+"""
+
+from __future__ import annotations
+
+import copy
+import statistics
+import time
+
+import torch
+
+from common.config import check_precision
+from common.policy import ActorCritic, Precision, bf16_is_fast
+from trainer.ppo import PPOBatch, ValueLossKind, minibatch_step
+
+PROBE_WARMUP = 2
+"""Untimed steps per precision first: oneDNN builds its kernels for a shape and dtype on the first call."""
+PROBE_ROUNDS = 3
+"""Timed rounds, the precisions interleaved round by round so that a load that comes and goes hits both alike."""
+PROBE_STEPS = 2
+"""Minibatch steps per precision per round; the median round is kept. With the warm-up, 16 steps in all: about
+1.3 s on a machine where a step takes 65-100 ms, once per trainer process."""
+
+
+def precision_candidates(precision: str) -> tuple[Precision, ...]:
+    """What ``precision`` may run as: itself for ``fp32`` or ``bf16``; for ``auto``, both where bf16 kernels are
+    native (:func:`common.policy.bf16_is_fast`; the faster is then measured), fp32 alone where they are not.
+    :class:`~common.errors.OptionError` for any other name."""
+    if check_precision(precision) != "auto":
+        return (precision,)  # type: ignore[return-value]
+    return ("fp32", "bf16") if bf16_is_fast() else ("fp32",)
+
+
+def time_precisions(
+    model: ActorCritic,
+    minibatch: PPOBatch,
+    candidates: tuple[Precision, ...],
+    step_args: tuple[float, float, float, ValueLossKind, float],
+    lr: float = 3e-4,
+) -> dict[str, float]:
+    """Milliseconds per PPO minibatch step (forward, backward, fused Adam) of a copy of ``model`` in each candidate
+    precision, on ``minibatch``; the median of :data:`PROBE_ROUNDS` interleaved rounds. ``step_args`` are
+    :func:`trainer.ppo.minibatch_step`'s clip_eps, beta_entropy, value_coef, loss_type and max_grad_norm. ``model``
+    itself (weights, precision, mode) is not touched, nor torch's random state (a network with dropout draws from it).
+    """
+    with torch.random.fork_rng(devices=[]):
+        return _time_copies(model, minibatch, candidates, step_args, lr)
+
+
+def _time_copies(
+    model: ActorCritic,
+    minibatch: PPOBatch,
+    candidates: tuple[Precision, ...],
+    step_args: tuple[float, float, float, ValueLossKind, float],
+    lr: float,
+) -> dict[str, float]:
+    copies = {}
+    for precision in candidates:
+        twin = copy.deepcopy(model)
+        twin.set_trunk_precision(precision)
+        twin.train()
+        copies[precision] = (twin, torch.optim.Adam(twin.parameters(), lr=lr, fused=True))
+    for twin, optimizer in copies.values():
+        for _ in range(PROBE_WARMUP):
+            minibatch_step(twin, optimizer, minibatch, *step_args)
+    rounds: dict[str, list[float]] = {precision: [] for precision in copies}
+    for _ in range(PROBE_ROUNDS):
+        for precision, (twin, optimizer) in copies.items():
+            start = time.perf_counter()
+            for _ in range(PROBE_STEPS):
+                minibatch_step(twin, optimizer, minibatch, *step_args)
+            rounds[precision].append((time.perf_counter() - start) / PROBE_STEPS * 1e3)
+    return {precision: statistics.median(ms) for precision, ms in rounds.items()}
+
+
+def fastest(ms_per_step: dict[str, float]) -> Precision:
+    """The precision with the fewest milliseconds per step; fp32 on a tie (it is the exact one)."""
+    if not ms_per_step:
+        raise ValueError("no precision was timed")
+    return min(sorted(ms_per_step, key=lambda p: p != "fp32"), key=lambda p: ms_per_step[p])  # type: ignore[return-value]
