@@ -16,7 +16,11 @@ track's direction as a DeepRacer race is driven, with 10 % action noise. The fig
 * ``final_completion``: the completion of the last evaluated checkpoint (0-1);
 * ``late_robust_lap_s``: the median mean lap of the robust checkpoints made in the budget's last fifth (where the
   learner ended up, not its luckiest checkpoint), and ``drift_after_best``: that over ``best_robust_lap_s`` (1.0:
-  it held its best; 1.2: it ended 20 % slower; None where no late checkpoint was robust).
+  it held its best; 1.2: it ended 20 % slower; None where no late checkpoint was robust);
+* ``best_command_speeds``: the share of the steps of the best robust checkpoint's evaluation laps at each commanded
+  speed (``{"1.5": 1.0}``: it drove every step at the slowest action). Each point of a seed's curve has its own
+  ``command_speeds``. A policy that settles on its slowest actions completes laps and stops getting faster (the
+  Gazebo car, 2026-11-27, docs/racing.md); this says so without a simtrace.
 
 The reward example's constants are set to the car, as its header asks a user to do (``reward_constants``: from the
 limits ``racer limit`` measured), and the JSON records them under ``reward_constants``.
@@ -30,6 +34,7 @@ import re
 import statistics
 import tempfile
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -225,9 +230,19 @@ def race_curve(run_id: str, runs: RunStore, t0: float) -> list[dict]:
                 "completion": float(record["completion_rate"]),
                 "mean_lap_s": statistics.fmean(laps) if laps else None,
                 "best_lap_s": min(laps) if laps else None,
+                "command_speeds": command_speeds(record),
             }
         )
     return curve
+
+
+def command_speeds(record: dict) -> dict[str, float]:
+    """The share of an evaluation's steps, over all its trials, at each commanded speed (the third field of each
+    trajectory point, the action's speed as the reward function's ``params['speed']`` sees it), keyed by the speed
+    as text in ascending order; empty where the record has no trajectories."""
+    counts = Counter(float(point[2]) for trial in record.get("trials") or [] for point in trial.get("trajectory") or [])
+    total = sum(counts.values())
+    return {f"{speed:g}": counts[speed] / total for speed in sorted(counts)}
 
 
 def seed_figures(curve: list[dict], limit_s: float, budget_s: float | None = None) -> dict[str, Any]:
@@ -235,7 +250,8 @@ def seed_figures(curve: list[dict], limit_s: float, budget_s: float | None = Non
     the late window, which ends at the last checkpoint where it is not given."""
     robust = [p for p in curve if p["completion"] >= 1.0]
     first = robust[0] if robust else None
-    best = min((p["mean_lap_s"] for p in robust), default=None)
+    best_point = min(robust, key=lambda p: p["mean_lap_s"], default=None)
+    best = None if best_point is None else best_point["mean_lap_s"]
     after = [p for p in curve if first is not None and p["version"] > first["version"]]
     collapsed = [i for i, p in enumerate(after) if p["completion"] < COLLAPSED_BELOW]
     starts = [i for i in collapsed if i == 0 or after[i - 1]["completion"] >= COLLAPSED_BELOW]
@@ -252,6 +268,7 @@ def seed_figures(curve: list[dict], limit_s: float, budget_s: float | None = Non
         "final_completion": curve[-1]["completion"] if curve else 0.0,
         "late_robust_lap_s": late,
         "drift_after_best": None if late is None or best is None else late / best,
+        "best_command_speeds": None if best_point is None else best_point.get("command_speeds"),
     }
 
 
@@ -351,7 +368,8 @@ def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> 
                 f"seed {seed}: robust after {figures['time_to_robust_s']} s, best robust lap "
                 f"{figures['best_robust_lap_s']} s, collapses {figures['collapses']}, "
                 f"final completion {figures['final_completion']:.2f}, "
-                f"late robust lap {figures['late_robust_lap_s']} s",
+                f"late robust lap {figures['late_robust_lap_s']} s, "
+                f"the best's share of steps at each commanded speed {figures['best_command_speeds']}",
                 highlight=False,
             )
     keys = (

@@ -206,10 +206,32 @@ def test_the_curve_leaves_out_a_rollbacks_copy_of_the_best(tmp_path) -> None:  #
         runs.write_file("r", evaluation_name(version), json.dumps(record))
     curve = race_curve("r", runs, t0=100.0)
     assert [p["version"] for p in curve] == [1, 2, 4]
+    assert curve[0].pop("command_speeds") == {}  # a record without trajectories
     assert curve[0] == pytest.approx(
         {"version": 1, "time_s": 10.0, "env_steps": 500, "completion": 1.0, "mean_lap_s": 11.5, "best_lap_s": 11.0}
     )
     assert seed_figures(curve, limit_s=10.0)["final_completion"] == 0.7
+
+
+def test_the_share_of_steps_at_each_commanded_speed_of_the_best_robust_checkpoint(tmp_path) -> None:  # noqa: ANN001
+    runs = RunStore(LocalStore(tmp_path))
+    runs.write_file(
+        "r",
+        METRICS_FILE,
+        "".join(json.dumps({"policy_version": v, "time": 0.0, "env_steps": 0}) + "\n" for v in (1, 2)),
+    )
+    slow = [[0.0, 0.0, 1.5]] * 3  # x, y, commanded speed per step, as the evaluator records a trial
+    mixed = [[0.0, 0.0, 1.5], [0.0, 0.0, 4.0], [0.0, 0.0, 2.75], [0.0, 0.0, 4.0]]
+    trials = {1: [{"trajectory": slow}, {"trajectory": slow}], 2: [{"trajectory": mixed}, {"trajectory": slow[:1]}]}
+    for version, laps in ((1, [14.0, 15.0]), (2, [10.0, 11.0])):
+        record = {"completion_rate": 1.0, "lap_times_s": laps, "trials": trials[version]}
+        runs.write_file("r", evaluation_name(version), json.dumps(record))
+    curve = race_curve("r", runs, t0=0.0)
+    assert curve[0]["command_speeds"] == {"1.5": 1.0}
+    assert curve[1]["command_speeds"] == pytest.approx({"1.5": 0.4, "2.75": 0.2, "4": 0.4})  # 2, 1 and 2 of 5 steps
+    assert list(curve[1]["command_speeds"]) == ["1.5", "2.75", "4"]
+    assert seed_figures(curve, limit_s=8.0)["best_command_speeds"] == curve[1]["command_speeds"]  # v2: 10.5 s
+    assert seed_figures([point(1, 0.5)], limit_s=8.0)["best_command_speeds"] is None  # no robust checkpoint
 
 
 def test_a_users_reward_constants_are_laid_over_the_cars_and_written_into_the_example(tmp_path) -> None:  # noqa: ANN001
