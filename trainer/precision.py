@@ -7,6 +7,8 @@ network on three stacked frames) it took 87-97 ms against 64-69 ms, so picking b
 update there about 1.4 times slower. Where both can run natively, the trainer times a few minibatch steps of each
 on a copy of its own network and its first batch, under the threads and load it trains with, and keeps the faster.
 Where bf16 would be emulated (no native kernels) it is always slower, and fp32 is used without a measurement.
+Where the two are close, the choice can differ between runs on one machine, and with it the updates' rounding: a
+run that must repeat bit for bit names its precision (``racer train --precision fp32``).
 """
 
 from __future__ import annotations
