@@ -10,26 +10,28 @@ the faster fused setting of those that run natively (``trainer.precision``).
 from __future__ import annotations
 
 import statistics
-import time
 
 import torch
 
 from common.policy import build_policy
-from trainer.ppo import PPOBatch, minibatch_step
-from trainer.precision import fastest, precision_candidates
+from trainer.ppo import PPOBatch
+from trainer.precision import fastest, precision_candidates, time_steps
 
 SETTINGS: tuple[tuple[str, bool], ...] = (("fp32", False), ("fp32", True), ("bf16", False), ("bf16", True))
 """(precision, fused Adam) pairs; the first is the trainer before this benchmark existed."""
 
 
-def _setup(precision: str, fused: bool, batch: int, seed: int) -> tuple:
+def _setup(precision: str, fused: bool, seed: int) -> tuple:
     torch.manual_seed(seed)
     model = build_policy((120, 160, 1), {"kind": "discrete", "n": 10})
     model.set_trunk_precision(precision)  # type: ignore[arg-type]
     model.train()
-    optimizer = torch.optim.Adam(model.parameters(), lr=3e-4, fused=fused)
+    return model, torch.optim.Adam(model.parameters(), lr=3e-4, fused=fused)
+
+
+def _minibatch(batch: int, seed: int) -> PPOBatch:
     gen = torch.Generator().manual_seed(seed)
-    mb = PPOBatch(
+    return PPOBatch(
         obs=torch.randint(0, 256, (batch, 120, 160, 1), dtype=torch.uint8, generator=gen),
         actions=torch.randint(0, 10, (batch,), generator=gen),
         old_logp=torch.full((batch,), -2.3),
@@ -37,23 +39,14 @@ def _setup(precision: str, fused: bool, batch: int, seed: int) -> tuple:
         returns=torch.randn(batch, generator=gen),
         old_values=torch.zeros(batch),
     )
-    return model, optimizer, mb
 
 
 def bench_update(threads: int = 2, batch: int = 64, steps: int = 10, repeats: int = 5) -> dict:
     """Milliseconds per minibatch step, the median over ``repeats`` runs of ``steps`` steps, per setting."""
     torch.set_num_threads(threads)
-    cases = {f"{p}{'-fused' if f else ''}": _setup(p, f, batch, 0) for p, f in SETTINGS}
-    runs: dict[str, list[float]] = {name: [] for name in cases}
-    for model, opt, mb in cases.values():  # warm-up: allocator, oneDNN primitive caches
-        for _ in range(3):
-            minibatch_step(model, opt, mb, 0.2, 0.01, 0.5, "huber", 0.5)
-    for _ in range(repeats):
-        for name, (model, opt, mb) in cases.items():
-            t0 = time.perf_counter()
-            for _ in range(steps):
-                minibatch_step(model, opt, mb, 0.2, 0.01, 0.5, "huber", 0.5)
-            runs[name].append((time.perf_counter() - t0) / steps * 1e3)
+    cases = {f"{p}{'-fused' if f else ''}": _setup(p, f, 0) for p, f in SETTINGS}
+    # Warm-up first (allocator, oneDNN primitive caches), then the settings interleaved run by run.
+    runs = time_steps(cases, _minibatch(batch, 0), (0.2, 0.01, 0.5, "huber", 0.5), 3, repeats, steps)
     base = statistics.median(runs["fp32"])
     fused = {p: statistics.median(runs[f"{p}-fused"]) for p in precision_candidates("auto")}
     return {

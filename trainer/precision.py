@@ -70,17 +70,33 @@ def _time_copies(
         twin.set_trunk_precision(precision)
         twin.train()
         copies[precision] = (twin, torch.optim.Adam(twin.parameters(), lr=lr, fused=True))
-    for twin, optimizer in copies.values():
-        for _ in range(PROBE_WARMUP):
-            minibatch_step(twin, optimizer, minibatch, *step_args)
-    rounds: dict[str, list[float]] = {precision: [] for precision in copies}
-    for _ in range(PROBE_ROUNDS):
-        for precision, (twin, optimizer) in copies.items():
-            start = time.perf_counter()
-            for _ in range(PROBE_STEPS):
-                minibatch_step(twin, optimizer, minibatch, *step_args)
-            rounds[precision].append((time.perf_counter() - start) / PROBE_STEPS * 1e3)
+    rounds = time_steps(copies, minibatch, step_args, PROBE_WARMUP, PROBE_ROUNDS, PROBE_STEPS)
     return {precision: statistics.median(ms) for precision, ms in rounds.items()}
+
+
+def time_steps(
+    cases: dict[str, tuple[torch.nn.Module, torch.optim.Optimizer]],
+    minibatch: PPOBatch,
+    step_args: tuple[float, float, float, ValueLossKind, float],
+    warmup: int,
+    rounds: int,
+    steps: int,
+) -> dict[str, list[float]]:
+    """Milliseconds per PPO minibatch step of each (model, optimizer) case, one figure per round: ``warmup`` untimed
+    steps of each first, then ``rounds`` rounds of ``steps`` steps, the cases interleaved round by round so that a
+    load that comes and goes hits them alike. The cases' weights move: pass copies. ``racer bench update`` uses it
+    too."""
+    for model, optimizer in cases.values():
+        for _ in range(warmup):
+            minibatch_step(model, optimizer, minibatch, *step_args)
+    ms: dict[str, list[float]] = {name: [] for name in cases}
+    for _ in range(rounds):
+        for name, (model, optimizer) in cases.items():
+            start = time.perf_counter()
+            for _ in range(steps):
+                minibatch_step(model, optimizer, minibatch, *step_args)
+            ms[name].append((time.perf_counter() - start) / steps * 1e3)
+    return ms
 
 
 def fastest(ms_per_step: dict[str, float]) -> Precision:
