@@ -1,9 +1,9 @@
 """``racer bench race``: learn to race from scratch and set the result beside the car's lap-time limit.
 
 For each seed, one after the other: ``racer train`` (embedded Redis, 2 workers, the evaluator beside the trainer)
-for a fixed budget on a 4 m/s action space (:data:`RACE_ACTIONS`, or a user's: ``--action-space``) with the racing
-reward example, racer's stability knobs on (the collapse guard with its pace rule, and target-KL early stopping:
-:data:`RACE_HYPERPARAMS`). The evaluator judges every checkpoint on 10 start points spread round the lap, in the
+for a fixed budget on a 4 m/s action space (:data:`RACE_ACTIONS`, or a user's, discrete or continuous:
+``--action-space``) with the racing reward example, racer's stability knobs on (the collapse guard with its pace
+rule, and target-KL early stopping: :data:`RACE_HYPERPARAMS`). The evaluator judges every checkpoint on 10 start points spread round the lap, in the
 track's direction as a DeepRacer race is driven, with 10 % action noise. The figures:
 
 * ``time_to_robust_s``: when the first checkpoint that completed all its evaluation laps was made;
@@ -18,7 +18,8 @@ track's direction as a DeepRacer race is driven, with 10 % action noise. The fig
   learner ended up, not its luckiest checkpoint), and ``drift_after_best``: that over ``best_robust_lap_s`` (1.0:
   it held its best; 1.2: it ended 20 % slower; None where no late checkpoint was robust);
 * ``best_command_speeds``: the share of the steps of the best robust checkpoint's evaluation laps at each commanded
-  speed (``{"1.5": 1.0}``: it drove every step at the slowest action). Each point of a seed's curve has its own
+  speed (``{"1.5": 1.0}``: it drove every step at the slowest action; for a continuous space the speeds are counted
+  in :data:`SPEED_BIN_MPS` bins, keyed by the bin's lower edge). Each point of a seed's curve has its own
   ``command_speeds``. A policy that settles on its slowest actions completes laps and stops getting faster (the
   Gazebo car, 2026-11-27, docs/racing.md); this says so without a simtrace.
 
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import re
 import statistics
 import tempfile
@@ -37,6 +39,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +59,11 @@ RACE_ACTIONS = [
     {"steering_angle": steer, "speed": speed} for speed in (1.5, 2.75, 4.0) for steer in (-30.0, -15.0, 0.0, 15.0, 30.0)
 ]
 """A 4 m/s discrete action space: five steering angles at three speeds."""
+RaceActions = list[dict[str, float]] | dict[str, dict[str, float]]
+"""A DeepRacer ``action_space`` as model_metadata.json writes it: a discrete space's list of ``{"steering_angle",
+"speed"}`` actions, or a continuous space's ``{"steering_angle": {"low", "high"}, "speed": {"low", "high"}}``."""
+SPEED_BIN_MPS = 0.25
+"""Width of the speed bins ``command_speeds`` counts a continuous space's commands in, m/s."""
 GUARD_HYPERPARAMS = {"collapse_guard": True, "collapse_min_best": 0.9, "target_kl": 0.05}
 """DeepRacer's defaults plus racer's stability knobs; learning rate and entropy constant, as in DeepRacer. The guard
 acts only once a checkpoint has been (nearly) robust: in a first 15-minute run it acted from a best of 0.6 of 10
@@ -99,11 +107,11 @@ class BenchRaceSettings:
     randomization: str | None = None
     """A domain-randomization file the rollout workers train with (``--randomization F``: ``{"action_noise":
     0.1}``, the noise racer's evaluator drives with); None: racer's defaults, no randomization but random starts."""
-    actions: list[dict[str, float]] | None = None
-    """A user's discrete action space (``--action-space F``, read by :func:`load_race_actions`); None:
-    :data:`RACE_ACTIONS`. The limit, the reward example's ``MAX_SPEED`` and the seeds all use it."""
+    actions: RaceActions | None = None
+    """A user's action space (``--action-space F``, read by :func:`load_race_actions`); None: :data:`RACE_ACTIONS`.
+    The limit, the reward example's ``MAX_SPEED`` and the seeds all use it."""
 
-    def race_actions(self) -> list[dict[str, float]]:
+    def race_actions(self) -> RaceActions:
         """The action space the seeds train with and the limit is computed for."""
         return RACE_ACTIONS if self.actions is None else self.actions
 
@@ -117,7 +125,19 @@ class BenchRaceSettings:
         return {**bench, **self.hyperparams}
 
 
-def reward_constants(car_limits: dict[str, Any], actions: list[dict[str, float]] = RACE_ACTIONS) -> dict[str, float]:
+def is_continuous(actions: RaceActions) -> bool:
+    """Whether ``actions`` is a continuous space's ranges (DeepRacer tells the two apart by the value's shape too)."""
+    return isinstance(actions, dict)
+
+
+def top_speed(actions: RaceActions) -> float:
+    """The highest speed an action space commands, m/s."""
+    if is_continuous(actions):
+        return float(actions["speed"]["high"])  # type: ignore[call-overload]
+    return max(float(a["speed"]) for a in actions)  # type: ignore[union-attr]
+
+
+def reward_constants(car_limits: dict[str, Any], actions: RaceActions = RACE_ACTIONS) -> dict[str, float]:
     """The racing example's MAX_SPEED, LATERAL_ACCEL and BRAKE for a car (``racer limit``'s ``car_limits``): the
     action space's top speed (``actions``), and :data:`REWARD_SHARE_OF_LIMIT` of
     the median lateral acceleration the car holds from 2 m/s up and of its median braking from 1 m/s up. Without
@@ -127,7 +147,7 @@ def reward_constants(car_limits: dict[str, Any], actions: list[dict[str, float]]
     lateral = [a for v, a in zip(speeds, car_limits["max_lateral_accel"], strict=True) if v >= 2.0]
     brake = [b for v, b in zip(speeds, car_limits["brake"], strict=True) if v >= 1.0]
     return {
-        "MAX_SPEED": max(a["speed"] for a in actions),
+        "MAX_SPEED": top_speed(actions),
         "LATERAL_ACCEL": round(REWARD_SHARE_OF_LIMIT * statistics.median(lateral), 2),
         "BRAKE": round(REWARD_SHARE_OF_LIMIT * statistics.median(brake), 2),
     }
@@ -175,39 +195,37 @@ def reward_file(folder: Path, constants: dict[str, float]) -> Path:
     return path
 
 
-def load_race_actions(path: str | Path) -> list[dict[str, float]]:
-    """A DeepRacer model_metadata.json's discrete actions as ``{"steering_angle", "speed"}`` pairs; otherwise
-    :class:`ActionSpaceError` naming the file (the bench's reward example and curves are set for a discrete space)."""
+def load_race_actions(path: str | Path) -> RaceActions:
+    """A DeepRacer model_metadata.json's ``action_space`` (:data:`RaceActions`: a discrete space's actions or a
+    continuous space's ranges); :class:`ActionSpaceError` naming the file where it asks for more than actions."""
     from common.action_space import ActionSpace, ActionSpaceError, load_action_space
 
     space = load_action_space(path)
-    if not space.discrete:
-        raise ActionSpaceError(
-            f"action space file {str(path)!r}: action_space_type: racer bench race takes a discrete action space, "
-            f"got {space.action_space_type!r}"
-        )
-    bench = ActionSpace(action_space=space.action_space)
+    bench = ActionSpace(action_space_type=space.action_space_type, action_space=space.action_space)
     for key in ("sensor", "neural_network"):  # the bench trains only the actions; say so rather than drop the rest
         if getattr(space, key) != getattr(bench, key):
             raise ActionSpaceError(
                 f"action space file {str(path)!r}: {key}: racer bench race trains {getattr(bench, key)!r} and takes "
                 f"only the actions from this file, got {getattr(space, key)!r}"
             )
-    return [{"steering_angle": a.steering_angle, "speed": a.speed} for a in space.action_space]  # type: ignore[union-attr]
+    if space.discrete:
+        return [{"steering_angle": a.steering_angle, "speed": a.speed} for a in space.action_space]  # type: ignore[union-attr]
+    return space.action_space.model_dump()  # type: ignore[union-attr]
 
 
 def _files(
-    folder: Path, hyperparams: dict[str, Any] | None = None, actions: list[dict[str, float]] = RACE_ACTIONS
+    folder: Path, hyperparams: dict[str, Any] | None = None, actions: RaceActions = RACE_ACTIONS
 ) -> tuple[Path, Path]:
     space, hp = folder / "model_metadata.json", folder / "hyperparameters.json"
-    space.write_text(json.dumps({"action_space": actions, "action_space_type": "discrete"}))
+    kind = "continuous" if is_continuous(actions) else "discrete"
+    space.write_text(json.dumps({"action_space": actions, "action_space_type": kind}))
     hp.write_text(json.dumps(RACE_HYPERPARAMS if hyperparams is None else hyperparams))
     return space, hp
 
 
-def race_curve(run_id: str, runs: RunStore, t0: float) -> list[dict]:
+def race_curve(run_id: str, runs: RunStore, t0: float, speed_bin: float | None = None) -> list[dict]:
     """Per evaluated checkpoint, in version order: version, time made (s from ``t0``), env steps, completion,
-    mean and best lap (s).
+    mean and best lap (s), and ``command_speeds`` (in ``speed_bin`` bins where given: a continuous space).
 
     Only checkpoints a training update made: the time comes from the trainer's metrics rows, and a collapse-guard
     rollback writes none, so its republished copy of the best is left out (it is the best again, not a policy the
@@ -230,17 +248,22 @@ def race_curve(run_id: str, runs: RunStore, t0: float) -> list[dict]:
                 "completion": float(record["completion_rate"]),
                 "mean_lap_s": statistics.fmean(laps) if laps else None,
                 "best_lap_s": min(laps) if laps else None,
-                "command_speeds": command_speeds(record),
+                "command_speeds": command_speeds(record, speed_bin),
             }
         )
     return curve
 
 
-def command_speeds(record: dict) -> dict[str, float]:
+def command_speeds(record: dict, speed_bin: float | None = None) -> dict[str, float]:
     """The share of an evaluation's steps, over all its trials, at each commanded speed (the third field of each
     trajectory point, the action's speed as the reward function's ``params['speed']`` sees it), keyed by the speed
-    as text in ascending order; empty where the record has no trajectories."""
-    counts = Counter(float(point[2]) for trial in record.get("trials") or [] for point in trial.get("trajectory") or [])
+    as text in ascending order; empty where the record has no trajectories. With ``speed_bin`` (a continuous
+    space's speeds, all different) each speed counts in its bin, keyed by the bin's lower edge."""
+    speeds = (float(point[2]) for trial in record.get("trials") or [] for point in trial.get("trajectory") or [])
+    if speed_bin:
+        # The small tolerance keeps a speed on a bin's edge (4.0 with 0.25 m/s bins) in that bin, not the one below.
+        speeds = (math.floor(v / speed_bin + 1e-9) * speed_bin for v in speeds)
+    counts = Counter(speeds)
     total = sum(counts.values())
     return {f"{speed:g}": counts[speed] / total for speed in sorted(counts)}
 
@@ -329,7 +352,9 @@ def seed_run(settings: BenchRaceSettings, seed: int, constants: dict[str, float]
 def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float, constants: dict[str, float]) -> dict[str, Any]:
     """One seed: ``racer train`` for the budget, then its figures."""
     run, files = seed_run(settings, seed, constants)
-    curve, guard = train_from_scratch(run, files, settings.workers, settings.minutes, settings.eval_starts, race_curve)
+    actions = settings.race_actions()
+    read_curve = partial(race_curve, speed_bin=SPEED_BIN_MPS) if is_continuous(actions) else race_curve
+    curve, guard = train_from_scratch(run, files, settings.workers, settings.minutes, settings.eval_starts, read_curve)
     figures = seed_figures(curve, limit_s, settings.minutes * 60.0)
     figures.update(seed=seed, **guard, curve=curve)
     return figures

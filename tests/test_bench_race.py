@@ -139,15 +139,22 @@ def test_a_user_can_turn_the_benchs_collapse_guard_off(tmp_path) -> None:  # noq
         (
             "--action-space",
             '{"action_space_type": "continuous", "action_space": {"steering_angle": {"low": -30, "high": 30}, '
-            '"speed": {"low": 1, "high": 4}}}',
-            "action_space_type",
-            "continuous",
+            '"speed": {"low": 4, "high": 1}}}',
+            "speed",
+            "low 4.0 is above high 1.0",
         ),
         (
             "--action-space",
             '{"action_space": [{"steering_angle": 0, "speed": 2}], "sensor": ["STEREO_CAMERAS"]}',
             "sensor",
             "STEREO_CAMERAS",
+        ),
+        (
+            "--action-space",
+            '{"action_space_type": "continuous", "action_space": {"steering_angle": {"low": -30, "high": 30}, '
+            '"speed": {"low": 1, "high": 4}}, "neural_network": "DEEP_CONVOLUTIONAL_NETWORK"}',
+            "neural_network",
+            "DEEP_CONVOLUTIONAL_NETWORK",
         ),
     ],
 )
@@ -302,3 +309,38 @@ def test_the_seeds_train_with_the_users_action_space_and_the_example_tops_at_its
     limits = {"speeds": [1.0, 2.0, 3.0], "max_lateral_accel": [3.0, 3.0, 3.0], "brake": [4.0, 4.0, 4.0]}
     assert reward_constants(limits, settings.race_actions())["MAX_SPEED"] == 3.5
     assert BenchRaceSettings().race_actions() == RACE_ACTIONS and reward_constants(limits)["MAX_SPEED"] == 4.0
+
+
+def test_a_continuous_action_space_trains_the_seeds_and_its_speeds_are_counted_in_bins(tmp_path) -> None:  # noqa: ANN001
+    """``--action-space F`` with a continuous space (what many DeepRacer racers train): the seeds' model_metadata.json
+    holds its ranges and type, the reward example's MAX_SPEED is the speed range's top, and ``command_speeds`` counts
+    the speeds, all different, in 0.25 m/s bins keyed by the bin's lower edge."""
+    from common.action_space import load_action_space
+    from racer.bench_race import (
+        BenchRaceSettings,
+        command_speeds,
+        example_constants,
+        load_race_actions,
+        reward_constants,
+        seed_run,
+    )
+
+    ranges = {"steering_angle": {"low": -25.0, "high": 25.0}, "speed": {"low": 1.5, "high": 3.8}}
+    path = tmp_path / "model_metadata.json"
+    path.write_text(json.dumps({"action_space": ranges, "action_space_type": "continuous"}))
+    assert load_race_actions(path) == ranges
+    settings = BenchRaceSettings(actions=load_race_actions(path))
+    _, files = seed_run(settings, 0, example_constants())
+    (tmp_path / "written.json").write_bytes(files["model_metadata.json"])
+    written = load_action_space(tmp_path / "written.json")
+    assert not written.discrete
+    assert (written.action_space.speed.low, written.action_space.speed.high) == (1.5, 3.8)
+    assert (written.action_space.steering_angle.low, written.action_space.steering_angle.high) == (-25.0, 25.0)
+    limits = {"speeds": [1.0, 2.0, 3.0], "max_lateral_accel": [3.0, 3.0, 3.0], "brake": [4.0, 4.0, 4.0]}
+    assert reward_constants(limits, settings.race_actions())["MAX_SPEED"] == 3.8
+
+    # 1.5 and 1.74 in [1.5, 1.75); 1.75 on an edge in [1.75, 2); 3.8 in [3.75, 4): 2, 1 and 1 of 4 steps.
+    record = {"trials": [{"trajectory": [[0, 0, 1.5], [0, 0, 1.74]]}, {"trajectory": [[0, 0, 1.75], [0, 0, 3.8]]}]}
+    assert command_speeds(record, 0.25) == {"1.5": 0.5, "1.75": 0.25, "3.75": 0.25}
+    assert list(command_speeds(record, 0.25)) == ["1.5", "1.75", "3.75"]
+    assert command_speeds(record) == {"1.5": 0.25, "1.74": 0.25, "1.75": 0.25, "3.8": 0.25}  # a discrete space's

@@ -192,7 +192,10 @@ def race(
     ] = None,
     action_space: Annotated[
         Path | None,
-        typer.Option("--action-space", help="model_metadata.json with a discrete action space (default: 4 m/s, 15)."),
+        typer.Option(
+            "--action-space",
+            help="model_metadata.json with a discrete or continuous action space (default: 4 m/s, 15 actions).",
+        ),
     ] = None,
     png: Annotated[Path | None, typer.Option("--png", help="Learning curves with the limit drawn.")] = None,
     json_out: JsonOut = None,
