@@ -3,8 +3,9 @@
 For each seed, one after the other: ``racer train`` (embedded Redis, 2 workers, the evaluator beside the trainer)
 for a fixed budget on a 4 m/s action space (:data:`RACE_ACTIONS`, or a user's, discrete or continuous:
 ``--action-space``) with the racing reward example, racer's stability knobs on (the collapse guard with its pace
-rule, and target-KL early stopping: :data:`RACE_HYPERPARAMS`). The evaluator judges every checkpoint on 10 start points spread round the lap, in the
-track's direction as a DeepRacer race is driven, with 10 % action noise. The figures:
+rule, and target-KL early stopping: :data:`RACE_HYPERPARAMS`). The evaluator judges every checkpoint on 10 start
+points spread round the lap, in the track's direction as a DeepRacer race is driven, with 10 % action noise. The
+figures:
 
 * ``time_to_robust_s``: when the first checkpoint that completed all its evaluation laps was made;
 * ``best_robust_lap_s``: the lowest mean lap time of such a checkpoint (every trial a lap, standing starts);
