@@ -262,7 +262,8 @@ def command_speeds(record: dict, speed_bin: float | None = None) -> dict[str, fl
     space's speeds, all different) each speed counts in its bin, keyed by the bin's lower edge."""
     speeds = (float(point[2]) for trial in record.get("trials") or [] for point in trial.get("trajectory") or [])
     if speed_bin:
-        # The small tolerance keeps a speed on a bin's edge (4.0 with 0.25 m/s bins) in that bin, not the one below.
+        # The small tolerance keeps a speed on a bin's edge in that bin where the division rounds below it (0.3 / 0.1
+        # is 2.9999999999999996); 0.25 m/s edges divide exactly.
         speeds = (math.floor(v / speed_bin + 1e-9) * speed_bin for v in speeds)
     counts = Counter(speeds)
     total = sum(counts.values())
