@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from common.car_calibration import CarCalibration
 from common.errors import OptionError, UserError
-from common.hyperparams import Hyperparameters
+from common.hyperparams import GreedyAction, Hyperparameters
 from common.race import RaceConfig
 
 FRAME_HEIGHT, FRAME_WIDTH = 120, 160
@@ -45,6 +45,8 @@ class PolicyConfig(BaseModel):
     """L2 weight decay, used by the trainer's optimizer (not by the network), per gradient step."""
     stack_size: int = Field(1, ge=1, le=8)
     """Stacked camera frames per observation, frames: the observation's channel count."""
+    greedy_action: GreedyAction = "mean"
+    """How a continuous policy acts greedily: the run's ``greedy_action`` hyperparameter (``mean``: DeepRacer's)."""
 
 
 def network_from_metadata(name: str) -> NetworkName:

@@ -5,12 +5,13 @@ Every key the DeepRacer simapp reads is accepted, with the simapp's default when
 ``max_sample_count`` and ``sampling_frequency``). Keys that change nothing in racer's clipped PPO are accepted and
 reported by :meth:`Hyperparameters.ignored` (``sac_alpha``; ``term_cond_avg_score``, which the simapp reads but
 never uses; ε-greedy settings with categorical exploration). racer adds four PPO knobs of its own (``clip_epsilon``,
-``gae_lambda``, ``value_loss_coef``, ``max_grad_norm``; the simapp hard-codes 0.2 and 0.95 for the first two) and
-stability knobs (``STABILITY_KEYS``: target-KL early stopping, learning-rate and entropy schedules, the collapse
-guard), all off by default, which is DeepRacer's behaviour. Any other key is what the simapp does with it, ignored
-(it reads the keys above with ``hp_dict.get`` and nothing else), but never silently: :meth:`Hyperparameters.ignored`
-lists it. A key that looks like a misspelt known key (``learning_rate`` for ``lr``, ``batchsize``) is an error
-naming the key it resembles, since ignoring it would silently train with the default.
+``gae_lambda``, ``value_loss_coef``, ``max_grad_norm``; the simapp hard-codes 0.2 and 0.95 for the first two), how a
+continuous policy acts greedily (``greedy_action``) and stability knobs (``STABILITY_KEYS``: target-KL early
+stopping, learning-rate and entropy schedules, the collapse guard), all off by default, which is DeepRacer's
+behaviour. Any other key is what the simapp does with it, ignored (it reads the keys above with ``hp_dict.get`` and
+nothing else), but never silently: :meth:`Hyperparameters.ignored` lists it. A key that looks like a misspelt known
+key (``learning_rate`` for ``lr``, ``batchsize``) is an error naming the key it resembles, since ignoring it would
+silently train with the default.
 """
 
 from __future__ import annotations
@@ -59,7 +60,14 @@ STABILITY_KEYS: tuple[str, ...] = (
     "collapse_slowdown",
 )
 """racer's stability knobs (README, "Stability knobs"): each off by default, which is DeepRacer's behaviour."""
-RACER_KEYS: tuple[str, ...] = ("clip_epsilon", "gae_lambda", "value_loss_coef", "max_grad_norm", *STABILITY_KEYS)
+RACER_KEYS: tuple[str, ...] = (
+    "clip_epsilon",
+    "gae_lambda",
+    "value_loss_coef",
+    "max_grad_norm",
+    "greedy_action",
+    *STABILITY_KEYS,
+)
 FLAGS: tuple[str, ...] = ("collapse_guard",)
 """The keys that take JSON true/false (every other key refuses a bool, which would pass as 1/0)."""
 
@@ -78,6 +86,9 @@ MISNAMED: dict[str, str] = {
     "lambda": "gae_lambda",
 }
 """Names other PPO libraries use for DeepRacer's keys: a file that has one meant the DeepRacer key."""
+
+GreedyAction = Literal["mean", "expected"]
+"""How a continuous policy acts greedily (``Hyperparameters.greedy_action``)."""
 
 HUBER = "huber"
 MEAN_SQUARED_ERROR = "mean squared error"
@@ -137,6 +148,12 @@ class Hyperparameters(BaseModel):
     """racer: weight of the value loss in the total loss, dimensionless."""
     max_grad_norm: float = Field(0.5, gt=0)
     """racer: global gradient-norm clip, L2 norm of all parameter gradients."""
+    greedy_action: GreedyAction = "mean"
+    """racer, continuous action spaces only: the action the policy takes when it acts greedily (evaluation, ``racer
+    eval``, ``racer export``). ``mean`` (DeepRacer): the Gaussian's mean, which the env clips to the action range.
+    ``expected``: the mean of the action the env executes, that is of the Gaussian censored at the range's bounds
+    (``common.policy.censored_mean``): the action a policy trained with its noise drives on average, also where its
+    mean has left the range (docs/racing.md)."""
 
     target_kl: float | None = Field(None, gt=0)
     """racer: stop a policy update's remaining epochs once an epoch's mean approx KL(old || new) exceeds this,

@@ -33,7 +33,9 @@ middleware. The policy head gives
 logits of a Categorical (discrete) or the mean of a diagonal Gaussian (continuous) whose log-std is a learned
 state-independent parameter. Continuous actions are in the env's units and are not squashed or clipped by the
 distribution: the env clips them. The Gaussian's mean is mid + half * head(h) and its std half * exp(log_std),
-with mid and half the centre and half-width of the action range, so one initialization suits degrees and m/s.
+with mid and half the centre and half-width of the action range, so one initialization suits degrees and m/s. Acting
+greedily, a continuous policy takes its mean (DeepRacer) or, with the ``greedy_action`` hyperparameter
+``expected``, the mean of the clipped action (:func:`censored_mean`).
 
 A camera-only network keeps one ``trunk`` (convs, camera dense layers, middleware), so a shallow network's state
 dict is the same as before LiDAR existed; a network with a LiDAR has ``camera_embedder`` (convs, camera dense
@@ -295,9 +297,15 @@ class ActorCritic(nn.Module):
         std = (self.action_half * self.log_std.exp()).expand_as(params)
         return Independent(Normal(params, std), 1)
 
-    def _mode(self, params: torch.Tensor) -> torch.Tensor:
-        """The most likely action: the argmax of the logits, or the Gaussian's mean."""
-        return params.argmax(-1) if self.action_kind == "discrete" else params
+    def greedy(self, params: torch.Tensor) -> torch.Tensor:
+        """The greedy action: the argmax of the logits; for continuous actions the Gaussian's mean, or with
+        ``greedy_action`` ``expected`` the mean of the action the env executes (:func:`censored_mean`)."""
+        if self.action_kind == "discrete":
+            return params.argmax(-1)
+        if self.cfg.greedy_action == "expected":
+            std = self.action_half * self.log_std.exp()
+            return censored_mean(params, std, self.action_mid - self.action_half, self.action_mid + self.action_half)
+        return params
 
     def distribution(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> Distribution:
         """π(·|o): Categorical over action indices, or Independent(Normal) over actions in env units."""
@@ -307,11 +315,11 @@ class ActorCritic(nn.Module):
     def act(
         self, obs: torch.Tensor, deterministic: bool = False, lidar: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(action, log π(action|o), V(o)) for a uint8 batch (and its LiDAR batch); deterministic = argmax / mean
-        action."""
+        """(action, log π(action|o), V(o)) for a uint8 batch (and its LiDAR batch); deterministic = the greedy action
+        (:meth:`greedy`)."""
         params, value = self(obs, lidar)
         dist = self._dist(params)
-        action = self._mode(params) if deterministic else dist.sample()
+        action = self.greedy(params) if deterministic else dist.sample()
         return action, dist.log_prob(action), value
 
     def act_numpy(
@@ -336,6 +344,21 @@ class ActorCritic(nn.Module):
         params, value = self(obs, lidar)
         dist = self._dist(params)
         return dist.log_prob(actions), dist.entropy(), value
+
+
+def censored_mean(mean: torch.Tensor, std: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
+    """E[clip(X, low, high)] for X ~ Normal(mean, std), elementwise: the mean action of a Gaussian policy whose
+    samples the env clips to [low, high].
+
+    With a = (low - mean) / std, b = (high - mean) / std, Φ and φ the standard normal's CDF and density:
+    low Φ(a) + high (1 - Φ(b)) + mean (Φ(b) - Φ(a)) + std (φ(a) - φ(b)). It equals ``mean`` where the range holds
+    nearly all of the Gaussian, tends to ``low`` (``high``) as the mean leaves the range below (above), and stays
+    inside the range. Written with ``erf`` and ``exp`` only, so that it exports to ONNX.
+    """
+    a, b = (low - mean) / std, (high - mean) / std
+    cdf_a, cdf_b = 0.5 * (1 + torch.erf(a / math.sqrt(2))), 0.5 * (1 + torch.erf(b / math.sqrt(2)))
+    pdf_a, pdf_b = torch.exp(-0.5 * a * a) / math.sqrt(2 * math.pi), torch.exp(-0.5 * b * b) / math.sqrt(2 * math.pi)
+    return low * cdf_a + high * (1 - cdf_b) + mean * (cdf_b - cdf_a) + std * (pdf_a - pdf_b)
 
 
 def bf16_is_fast(device: str = "cpu") -> bool:

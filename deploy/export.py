@@ -4,7 +4,8 @@ The ONNX graph takes what the camera pipeline produces, uint8 frames ``obs`` of 
 C = stack_size (front camera) or 2 × stack_size (stereo: left, right of each frame), and, when the run's sensors
 include a LiDAR, float32 ``lidar`` of shape (batch, N) (N = 64 for LIDAR, 8 for SECTOR_LIDAR:
 ``common.sensors``). It returns ``action_probs`` (discrete: the policy's probabilities over the action space) or
-``action_mean`` (continuous: the Gaussian's mean, in steering degrees and m/s), plus ``value``. The scaling to
+``action_mean`` (continuous: the action the policy takes greedily, in steering degrees and m/s: the Gaussian's mean,
+or with the run's ``greedy_action`` ``expected`` the mean of the clipped action), plus ``value``. The scaling to
 [0, 1] happens inside the graph, as in training, so the car feeds raw pixels. ``model_metadata.json`` (the
 action space and sensors, in DeepRacer's format) is written beside the model; the model's own metadata properties
 say which run and version it came from, its sensors and how to build its inputs.
@@ -34,8 +35,8 @@ class _Exported(torch.nn.Module):
     def forward(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         params, value = self.model(obs, lidar)
         if self.model.action_kind == "discrete":
-            params = torch.softmax(params, dim=-1)
-        return params, value
+            return torch.softmax(params, dim=-1), value
+        return self.model.greedy(params), value
 
 
 def export_onnx(runs: RunStore, run_id: str, checkpoint: str | int, out: str | Path) -> dict:

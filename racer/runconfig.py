@@ -18,7 +18,7 @@ from common.config import (
     network_from_metadata,
 )
 from common.errors import OptionError, UserError
-from common.hyperparams import Hyperparameters, load_hyperparameters
+from common.hyperparams import Hyperparameters, HyperparametersError, load_hyperparameters
 from common.jsonfile import load_json_model
 from common.race import RaceConfig, RaceType
 from model_store import RunStore, StoreError
@@ -76,7 +76,15 @@ def build_run(
     # A broken reward function fails here, naming the user's file, before any process starts. The check drives a
     # throwaway env (its own copy of the reward module) on the run's track, so nothing it caches reaches training.
     preflight_reward(env.model_copy(update={"reward_fn": str(reward_path), "action_space": action_space}))
-    policy = PolicyConfig(network=network_from_metadata(actions.neural_network), stack_size=hp.stack_size)
+    if hp.greedy_action != "mean" and actions.discrete:
+        # Nothing is accepted that racer cannot honour: a discrete policy acts greedily by its argmax.
+        raise HyperparametersError(
+            f"{hyperparams}: greedy_action {hp.greedy_action!r} applies to a continuous action space; "
+            f"{action_space or 'the default action space'} is discrete"
+        )
+    policy = PolicyConfig(
+        network=network_from_metadata(actions.neural_network), stack_size=hp.stack_size, greedy_action=hp.greedy_action
+    )
     run = RunConfig(run_id=run_id, env=env, hyperparams=hp, policy=policy, worker_tracks=worker_tracks or [], seed=seed)
     files = {
         "reward_function.py": reward_path.read_bytes(),
@@ -141,8 +149,9 @@ def check_pretrained(runs: RunStore, run: RunConfig, files: dict[str, bytes], re
             f"pretrained {ref!r}: its sensors {their_actions.sensor} differ from this run's {ours.sensor}; "
             "the network's inputs would not fit"
         )
-    mine = run.policy.model_dump(exclude={"l2"})
-    if theirs.policy.model_dump(exclude={"l2"}) != mine:
+    # The weight decay and the greedy action are not part of the network: a pretrained model takes the run's own.
+    mine = run.policy.model_dump(exclude={"l2", "greedy_action"})
+    if theirs.policy.model_dump(exclude={"l2", "greedy_action"}) != mine:
         raise PretrainedError(
             f"pretrained {ref!r}: its network {theirs.policy.model_dump()} differs from this run's {mine}"
         )

@@ -42,14 +42,16 @@ CONTINUOUS = {
 }
 
 
-def make_run(tmp: Path, run_id: str, action_space: dict | None = None, stack_size: int = 1) -> RunStore:
+def make_run(
+    tmp: Path, run_id: str, action_space: dict | None = None, stack_size: int = 1, greedy: str = "mean"
+) -> RunStore:
     """A run in a local store with one checkpoint: a seeded policy whose head is scaled up, so that its choices
     differ clearly from frame to frame (a fresh policy is nearly uniform and its argmax would be a coin toss)."""
     space = None
     if action_space:
         (tmp / "space.json").write_text(json.dumps(action_space))
         space = str(tmp / "space.json")
-    (tmp / "hp.json").write_text(json.dumps({"stack_size": stack_size}))
+    (tmp / "hp.json").write_text(json.dumps({"stack_size": stack_size, "greedy_action": greedy}))
     run, files = build_run(run_id, track="reinvent_base", action_space=space, hyperparams=str(tmp / "hp.json"))
     runs = RunStore(open_store(str(tmp / "store")))
     for name, data in files.items():
@@ -104,6 +106,23 @@ def test_onnx_export_matches_torch(tmp_path, space, stack):
     if space is None:  # the greedy actions agree, and they are not all the same action
         assert (onnx_params.argmax(1) == expected.numpy().argmax(1)).all()
         assert len(set(onnx_params.argmax(1))) > 1
+
+
+def test_onnx_export_gives_the_censored_mean_with_greedy_action_expected(tmp_path):
+    runs = make_run(tmp_path, "exp", CONTINUOUS, 1, greedy="expected")
+    result = export_onnx(runs, "exp", "latest", tmp_path / "out" / "model.onnx")
+    model = stored_policy(runs, "exp")
+    assert model.cfg.greedy_action == "expected"
+    obs = np.stack(sim_frames(8))
+    onnx_action, _ = ort.InferenceSession(result["model"], providers=["CPUExecutionProvider"]).run(None, {"obs": obs})
+    torch_action, _, _ = model.act_numpy(obs, deterministic=True)
+    with torch.no_grad():
+        mean, _ = model(torch.from_numpy(obs))
+    np.testing.assert_allclose(onnx_action, torch_action, rtol=1e-5, atol=1e-4)
+    # The scaled-up head puts some means outside the range: there the export differs from the plain mean.
+    outside = (mean < torch.tensor([-30.0, 0.5])) | (mean > torch.tensor([30.0, 2.0]))
+    assert outside.any() and (np.abs(onnx_action - mean.numpy())[outside.numpy()] > 0.01).all()
+    assert ((onnx_action >= [-30.0, 0.5]) & (onnx_action <= [30.0, 2.0])).all()
 
 
 def test_the_runtime_builds_the_same_tensor_as_training_from_the_same_frame():

@@ -277,3 +277,42 @@ def test_the_evaluator_rides_out_a_short_redis_outage_and_ends_on_a_longer_one(t
         thread.join(10)
         server.stop()
         torch.set_num_threads(threads)  # run_evaluator sets this process's torch to one thread
+
+
+def test_greedy_action_expected_is_refused_for_a_discrete_space_in_one_line(tmp_path):
+    from common.hyperparams import HyperparametersError
+
+    hp = tmp_path / "hyperparameters.json"
+    hp.write_text(json.dumps({"greedy_action": "expected"}))
+    with pytest.raises(HyperparametersError) as info:
+        build_run("g", hyperparams=str(hp))
+    message = str(info.value)
+    assert "\n" not in message and str(hp) in message and "greedy_action 'expected'" in message
+
+
+def test_greedy_action_reaches_the_evaluated_policy(tmp_path):
+    from common.action_space import ActionSpace
+    from common.policy import action_space_spec, build_policy, checkpoint_to_bytes, load_policy
+
+    space = tmp_path / "model_metadata.json"
+    space.write_text(
+        json.dumps(
+            {
+                "action_space_type": "continuous",
+                "action_space": {"steering_angle": {"low": -25, "high": 25}, "speed": {"low": 1.5, "high": 4.0}},
+            }
+        )
+    )
+    hp = tmp_path / "hyperparameters.json"
+    hp.write_text(json.dumps({"greedy_action": "expected"}))
+    run, files = build_run("g", action_space=str(space), hyperparams=str(hp))
+    assert run.policy.greedy_action == "expected"
+    runs = RunStore(LocalStore(tmp_path / "store"))
+    for name, data in files.items():
+        runs.write_file("g", name, data)
+    runs.write_file("g", "config.json", run.model_dump_json())
+    actions = ActionSpace.model_validate_json(files["model_metadata.json"])
+    network = build_policy((120, 160, 1), action_space_spec(actions))
+    runs.save_checkpoint("g", 1, checkpoint_to_bytes(network.state_dict()), {})
+    model, _ = load_policy(runs, "g", actions, 1)
+    assert model.cfg.greedy_action == "expected"

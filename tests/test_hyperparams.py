@@ -93,6 +93,14 @@ def test_racer_knobs_allowed(tmp_path: Path) -> None:
     assert (hp.clip_epsilon, hp.gae_lambda, hp.value_loss_coef) == (0.1, 0.9, 1.0)
 
 
+def test_greedy_action_defaults_to_the_mean_and_round_trips(tmp_path: Path) -> None:
+    assert Hyperparameters().greedy_action == "mean"
+    assert "greedy_action" not in json.loads(Hyperparameters().to_json())
+    hp = load_hyperparameters(_write(tmp_path, json.dumps(DEEPRACER_FILE | {"greedy_action": "expected"})))
+    assert hp.greedy_action == "expected" and json.loads(hp.to_json())["greedy_action"] == "expected"
+    assert load_hyperparameters(_write(tmp_path, hp.to_json())) == hp
+
+
 def test_to_json_is_deepracer_format(tmp_path: Path) -> None:
     hp = Hyperparameters.model_validate(DEEPRACER_FILE)
     data = json.loads(hp.to_json())
@@ -179,6 +187,8 @@ def test_unknown_key_is_a_typo(tmp_path: Path) -> None:
         ("collapse_lr_floor", 1.5),
         ("collapse_slowdown", 0),
         ("collapse_slowdown", "fast"),
+        ("greedy_action", "median"),
+        ("greedy_action", 1),
     ],
 )
 def test_bad_value_names_key_and_value(tmp_path: Path, key: str, value: object) -> None:

@@ -22,6 +22,7 @@ from common.policy import (
     PolicyConfig,
     action_space_spec,
     build_policy,
+    censored_mean,
     checkpoint_from_bytes,
     checkpoint_to_bytes,
     conv_output_shape,
@@ -163,6 +164,48 @@ def test_deterministic_continuous_act_is_the_mean() -> None:
     actions, _, _ = model.act_numpy(obs, deterministic=True)
     mean, _ = model(torch.from_numpy(obs))
     np.testing.assert_allclose(actions, mean.detach().numpy(), atol=1e-6)
+
+
+def test_censored_mean_matches_hand_computed_values() -> None:
+    # Mean at the lower bound 0 of [0, 10], std 1: a = 0, b = 10, so E = 10 (1 - Φ(10)) + 0 + 1 × (φ(0) - φ(10))
+    # = φ(0) = 1/sqrt(2π) = 0.398942 (the half-normal's mean), to 1e-6.
+    got = censored_mean(torch.tensor([0.0]), torch.tensor([1.0]), torch.tensor([0.0]), torch.tensor([10.0]))
+    assert got.item() == pytest.approx(0.3989423, abs=1e-6)
+    # Symmetric range about the mean: E = mean exactly, whatever the std.
+    sym = censored_mean(torch.tensor([2.0]), torch.tensor([5.0]), torch.tensor([-1.0]), torch.tensor([5.0]))
+    assert sym.item() == pytest.approx(2.0, abs=1e-6)
+    # A narrow Gaussian well inside the range: its mean. Far below the range: the lower bound.
+    inside = censored_mean(torch.tensor([1.2]), torch.tensor([0.01]), torch.tensor([0.5]), torch.tensor([4.0]))
+    below = censored_mean(torch.tensor([-20.0]), torch.tensor([1.0]), torch.tensor([0.5]), torch.tensor([4.0]))
+    assert inside.item() == pytest.approx(1.2, abs=1e-6) and below.item() == pytest.approx(0.5, abs=1e-6)
+
+
+def test_censored_mean_is_the_mean_of_the_clipped_samples() -> None:
+    # The speed case the Gazebo bench found (docs/racing.md): a mean below the range, a std of half the range.
+    mean, std = torch.tensor([0.99, 20.0]), torch.tensor([1.18, 23.0])
+    low, high = torch.tensor([1.5, -25.0]), torch.tensor([4.0, 25.0])
+    gen = torch.Generator().manual_seed(0)
+    samples = mean + std * torch.randn((400_000, 2), generator=gen)
+    clipped = torch.minimum(torch.maximum(samples, low), high).mean(0)
+    np.testing.assert_allclose(censored_mean(mean, std, low, high).numpy(), clipped.numpy(), atol=0.02)
+    assert censored_mean(mean, std, low, high)[0].item() > 1.5 + 0.2  # well above the clipped mean, 1.5
+
+
+def test_greedy_expected_takes_the_censored_mean() -> None:
+    model = build_policy(SMALL, CONTINUOUS, PolicyConfig(greedy_action="expected"))
+    obs = _obs(3, SMALL)
+    with torch.no_grad():
+        model.policy_head.bias.copy_(torch.tensor([0.0, -2.0]))  # speed mean 2.25 - 2 × 1.75 = -1.25, below 0.5
+    actions, _, _ = model.act_numpy(obs, deterministic=True)
+    mean, _ = model(torch.from_numpy(obs))
+    std = model.action_half * model.log_std.exp()
+    low, high = torch.tensor([-30.0, 0.5]), torch.tensor([30.0, 4.0])
+    np.testing.assert_allclose(actions, censored_mean(mean, std, low, high).detach().numpy(), atol=1e-5)
+    assert (mean[:, 1] < 0.5).all() and (actions[:, 1] > 0.5).all() and (actions[:, 1] < 4.0).all()
+    # DeepRacer's rule on the same weights: the mean itself, which the env would clip to 0.5.
+    plain = build_policy(SMALL, CONTINUOUS)
+    plain.load_state_dict(model.state_dict())
+    np.testing.assert_allclose(plain.act_numpy(obs, deterministic=True)[0], mean.detach().numpy(), atol=1e-6)
 
 
 def test_orthogonal_init_gains() -> None:
