@@ -6,8 +6,11 @@ import json
 import tempfile
 from pathlib import Path
 
+from common.action_space import ActionSpace
 from common.car_calibration import load_car
 from common.config import RunConfig
+from common.errors import OptionError
+from common.hyperparams import GreedyAction
 from common.simtrace import SimTraceRecorder
 from model_store import RunStore, open_store
 from model_store.localize import localize_env
@@ -27,12 +30,16 @@ def run_eval(
     video: Path | None = None,
     car_calibration: str | Path | None = None,
     resets: bool = True,
+    greedy_action: GreedyAction | None = None,
 ) -> dict:
-    """Evaluate and return the record (summary and trials); optionally write a sim-trace CSV and a video."""
+    """Evaluate and return the record (summary and trials); optionally write a sim-trace CSV and a video.
+    ``greedy_action`` (None: the run's) sets how a continuous policy acts (``Hyperparameters.greedy_action``)."""
     runs = RunStore(open_store(store, s3_endpoint))
     run = runs.read_config(run_id)
     if car_calibration is not None:  # drive the policy on another car than the one it was trained on
         run = run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(car_calibration)})})
+    if greedy_action is not None:
+        run = _with_greedy_action(runs, run, greedy_action)
     version: int | str = int(checkpoint) if checkpoint.isdigit() else checkpoint
     settings = EvalSettings(
         episodes=episodes, both_directions=both_directions, action_noise=action_noise, tracks=tracks, resets=resets
@@ -46,6 +53,16 @@ def run_eval(
         if video is not None:
             record["video"] = write_video(runs, run, env_cfg, record["version"], settings, video)
         return record
+
+
+def _with_greedy_action(runs: RunStore, run: RunConfig, greedy_action: GreedyAction) -> RunConfig:
+    """``run`` acting greedily by ``greedy_action``; OptionError for ``expected`` on a discrete action space."""
+    actions = ActionSpace.model_validate_json(runs.read_file(run.run_id, "model_metadata.json"))
+    if greedy_action != "mean" and actions.discrete:
+        raise OptionError(
+            f"--greedy-action {greedy_action}: run {run.run_id!r} has a discrete action space, which acts by its argmax"
+        )
+    return run.model_copy(update={"policy": run.policy.model_copy(update={"greedy_action": greedy_action})})
 
 
 def write_video(runs: RunStore, run: RunConfig, env_cfg, version: int, settings: EvalSettings, path: Path) -> dict:

@@ -316,3 +316,24 @@ def test_greedy_action_reaches_the_evaluated_policy(tmp_path):
     runs.save_checkpoint("g", 1, checkpoint_to_bytes(network.state_dict()), {})
     model, _ = load_policy(runs, "g", actions, 1)
     assert model.cfg.greedy_action == "expected"
+    # racer eval re-judges it under either rule and says which in the record; the discrete run above refuses.
+    from racer.evaluate import run_eval
+
+    for rule in ("mean", "expected"):
+        record = run_eval("g", str(tmp_path / "store"), None, "1", [], 1, False, 0.0, greedy_action=rule)
+        assert record["greedy_action"] == rule and record["episodes"] == 1
+
+
+def test_racer_eval_refuses_greedy_action_expected_for_a_discrete_run_in_one_line(tmp_path):
+    from typer.testing import CliRunner
+
+    from racer.cli import app
+
+    run, files = build_run("d", track="reinvent_base")
+    runs = RunStore(LocalStore(tmp_path))
+    for name, data in files.items():
+        runs.write_file("d", name, data)
+    runs.write_file("d", "config.json", run.model_dump_json())
+    args = ["eval", "--run-id", "d", "--store", str(tmp_path), "--greedy-action", "expected"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2 and "--greedy-action expected: run 'd' has a discrete action space" in result.output

@@ -288,6 +288,7 @@ def evaluate_checkpoint(
         "track": env_cfg.track,
         **summarize(trials),
         "settings": asdict(settings),
+        "greedy_action": run.policy.greedy_action,
         "created": time.time(),
         "trials": [asdict(t) for t in trials],
     }

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from common.hyperparams import GreedyAction
 from racer.commands.options import Endpoint, JsonOut, Store, console, write_json
 
 
@@ -35,6 +36,13 @@ def evaluate(
             "(its race's number_of_resets); --no-resets ends a trial there, as racer's robust evaluation does.",
         ),
     ] = True,
+    greedy_action: Annotated[
+        GreedyAction | None,
+        typer.Option(
+            help="How a continuous policy acts: mean (its Gaussian's mean, DeepRacer's) or expected (the mean of its "
+            "clipped action). Default: the run's greedy_action."
+        ),
+    ] = None,
 ) -> None:
     """Evaluate a checkpoint of a run from a store: a table per trial, and the JSON summary."""
     from racer.evaluate import run_eval
@@ -52,6 +60,7 @@ def evaluate(
         video,
         car_calibration,
         resets,
+        greedy_action,
     )
     if json_out != "-":
         console.print(_trials_table(record["trials"]))
