@@ -115,6 +115,20 @@ def test_a_users_hyperparameters_are_laid_over_the_benchs(tmp_path) -> None:  # 
     assert BenchRaceSettings().race_hyperparams() == RACE_HYPERPARAMS
 
 
+def test_a_continuous_space_is_judged_on_its_expected_action_unless_the_user_says_otherwise(tmp_path) -> None:  # noqa: ANN001
+    """A continuous space adds ``greedy_action`` ``expected`` (a discrete one would refuse it); the user's file wins."""
+    from common.hyperparams import load_hyperparameters
+    from racer.bench_race import RACE_HYPERPARAMS, BenchRaceSettings, _files
+
+    ranges = {"steering_angle": {"low": -25.0, "high": 25.0}, "speed": {"low": 1.5, "high": 4.0}}
+    merged = BenchRaceSettings(actions=ranges).race_hyperparams()
+    assert merged == {**RACE_HYPERPARAMS, "greedy_action": "expected"}
+    assert load_hyperparameters(_files(tmp_path, merged)[1]).greedy_action == "expected"
+    mean = BenchRaceSettings(actions=ranges, hyperparams={"greedy_action": "mean"}).race_hyperparams()
+    assert mean["greedy_action"] == "mean"
+    assert "greedy_action" not in BenchRaceSettings().race_hyperparams()
+
+
 def test_a_user_can_turn_the_benchs_collapse_guard_off(tmp_path) -> None:  # noqa: ANN001
     """``{"collapse_guard": false}`` (DeepRacer's behaviour) drops the bench's guard settings, which would change
     nothing without the guard, and keeps its other knobs; the merged file loads with no idle key noted."""
