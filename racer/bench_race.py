@@ -25,6 +25,8 @@ figures:
   ``command_speeds``. A policy that settles on its slowest actions completes laps and stops getting faster (the
   Gazebo car, 2026-11-27, docs/racing.md); this says so without a simtrace.
 
+The medians are over the seeds that reached each figure; ``robust_seeds`` says how many lapped robustly at all.
+
 The reward example's constants are set to the car, as its header asks a user to do (``reward_constants``: from the
 limits ``racer limit`` measured), and the JSON records them under ``reward_constants``.
 """
@@ -378,7 +380,9 @@ def training_randomization(path: str | None) -> dict[str, Any]:
 
 
 def median_known(values: list[float | None]) -> float | None:
-    """The median of the values that are known (None: a seed that never reached the figure); None if none is."""
+    """The median of the values that are known (None: a seed that never reached the figure); None if none is. The
+    result says how many seeds it is over (``robust_seeds``): with one seed of three never robust, this is the
+    median of the other two, where counting that seed as the slowest would give the slower of them."""
     known = [v for v in values if v is not None]
     return statistics.median(known) if known else None
 
@@ -433,6 +437,7 @@ def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> 
         **medians,
         "collapses": sum(s["collapses"] for s in seeds),
         "collapses_recovered": sum(s["collapses_recovered"] for s in seeds),
+        "robust_seeds": sum(s["time_to_robust_s"] is not None for s in seeds),
         "seeds": seeds,
     }
 
@@ -447,15 +452,17 @@ def plot_race(result: dict[str, Any], out_png: str | Path) -> Path:
     from racer.plots import save_figure
 
     fig, (ax_lap, ax_done) = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
-    for s in result["seeds"]:
+    for i, s in enumerate(result["seeds"]):
+        # One colour a seed in both panels: a seed with no robust lap draws nothing in the upper one.
         t = [p["time_s"] / 60 for p in s["curve"]]
-        ax_done.plot(t, [p["completion"] for p in s["curve"]], marker=".", label=f"seed {s['seed']}")
+        ax_done.plot(t, [p["completion"] for p in s["curve"]], marker=".", color=f"C{i}", label=f"seed {s['seed']}")
         robust = [(p["time_s"] / 60, p["mean_lap_s"]) for p in s["curve"] if p["completion"] >= 1.0]
         if robust:
-            ax_lap.plot(*zip(*robust, strict=True), marker="o", label=f"seed {s['seed']}")
+            ax_lap.plot(*zip(*robust, strict=True), marker="o", color=f"C{i}", label=f"seed {s['seed']}")
     ax_lap.axhline(result["limit_s"], color="black", ls="--", label=f"racer limit {result['limit_s']:.2f} s")
     ax_lap.set_ylabel("robust mean lap (s)")
     ax_lap.legend()
+    ax_done.legend(loc="lower right")
     ax_done.set_ylabel("evaluation completion")
     ax_done.set_xlabel("minutes")
     ax_done.set_ylim(-0.05, 1.05)
