@@ -52,6 +52,16 @@ def test_robust_streak_counts_the_latest_full_completions():
     assert robust_streak([]) == 0
 
 
+def _stored_run(store, run_id, **options):
+    """A run built as ``racer train`` builds it (``build_run(run_id, **options)``), its files and config stored."""
+    run, files = build_run(run_id, **options)
+    runs = RunStore(LocalStore(store))
+    for name, data in files.items():
+        runs.write_file(run_id, name, data)
+    runs.write_file(run_id, "config.json", run.model_dump_json())
+    return run, files, runs
+
+
 def _runs_with_checkpoints(tmp_path, versions):
     runs = RunStore(LocalStore(tmp_path))
     for v in versions:
@@ -104,11 +114,7 @@ def test_racer_eval_cli_prints_writes_json_and_video(tmp_path):
     from racer.cli import app
     from sim.env import RacerEnv
 
-    run, files = build_run("cli-ev", track="reinvent_base")
-    runs = RunStore(LocalStore(tmp_path))
-    for name, data in files.items():
-        runs.write_file("cli-ev", name, data)
-    runs.write_file("cli-ev", "config.json", run.model_dump_json())
+    run, _, runs = _stored_run(tmp_path, "cli-ev", track="reinvent_base")
     actions = RacerEnv(track="reinvent_base").actions
     model = build_policy((120, 160, 1), action_space_spec(actions), run.policy)
     runs.save_checkpoint("cli-ev", 3, checkpoint_to_bytes(model.state_dict()), {"env_steps": 300})
@@ -305,12 +311,8 @@ def test_greedy_action_reaches_the_evaluated_policy(tmp_path):
     )
     hp = tmp_path / "hyperparameters.json"
     hp.write_text(json.dumps({"greedy_action": "expected"}))
-    run, files = build_run("g", action_space=str(space), hyperparams=str(hp))
+    run, files, runs = _stored_run(tmp_path / "store", "g", action_space=str(space), hyperparams=str(hp))
     assert run.policy.greedy_action == "expected"
-    runs = RunStore(LocalStore(tmp_path / "store"))
-    for name, data in files.items():
-        runs.write_file("g", name, data)
-    runs.write_file("g", "config.json", run.model_dump_json())
     actions = ActionSpace.model_validate_json(files["model_metadata.json"])
     network = build_policy((120, 160, 1), action_space_spec(actions))
     runs.save_checkpoint("g", 1, checkpoint_to_bytes(network.state_dict()), {})
@@ -329,11 +331,7 @@ def test_racer_eval_refuses_greedy_action_expected_for_a_discrete_run_in_one_lin
 
     from racer.cli import app
 
-    run, files = build_run("d", track="reinvent_base")
-    runs = RunStore(LocalStore(tmp_path))
-    for name, data in files.items():
-        runs.write_file("d", name, data)
-    runs.write_file("d", "config.json", run.model_dump_json())
+    _stored_run(tmp_path, "d", track="reinvent_base")
     args = ["eval", "--run-id", "d", "--store", str(tmp_path), "--greedy-action", "expected"]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 2 and "--greedy-action expected: run 'd' has a discrete action space" in result.output
