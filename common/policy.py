@@ -232,6 +232,10 @@ class ActorCritic(nn.Module):
         half = (hi - lo) / 2  # a zero-width range (low == high) gets a unit scale: a Normal needs std > 0
         self.register_buffer("action_mid", (hi + lo) / 2)
         self.register_buffer("action_half", torch.where(half > 0, half, torch.ones_like(half)))
+        # The range itself, for the greedy action's clipping (action_half is 1 where the range has no width). Not in
+        # the state dict, so checkpoints from before it load as they are.
+        self.register_buffer("action_low", lo, persistent=False)
+        self.register_buffer("action_high", hi, persistent=False)
         self.policy_head = _init(nn.Linear(self.hidden, len(low)), 0.01)
         self.log_std = nn.Parameter(torch.zeros(len(low)))
         return len(low)
@@ -304,7 +308,7 @@ class ActorCritic(nn.Module):
             return params.argmax(-1)
         if self.cfg.greedy_action == "expected":
             std = self.action_half * self.log_std.exp()
-            return censored_mean(params, std, self.action_mid - self.action_half, self.action_mid + self.action_half)
+            return censored_mean(params, std, self.action_low, self.action_high)
         return params
 
     def distribution(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> Distribution:

@@ -208,6 +208,18 @@ def test_greedy_expected_takes_the_censored_mean() -> None:
     np.testing.assert_allclose(plain.act_numpy(obs, deterministic=True)[0], mean.detach().numpy(), atol=1e-6)
 
 
+def test_greedy_expected_holds_a_zero_width_range_at_its_value() -> None:
+    """A range with no width (a fixed speed) keeps a unit scale for the Gaussian; its greedy action is still the
+    value the env would clip every draw to. The range is not in the state dict: older checkpoints load unchanged."""
+    fixed = {"kind": "continuous", "low": [-30.0, 2.0], "high": [30.0, 2.0]}
+    model = build_policy(SMALL, fixed, PolicyConfig(greedy_action="expected"))
+    with torch.no_grad():
+        model.policy_head.bias[1] = 0.5  # the speed's Gaussian at 2.5 m/s, std 1 (the unit scale): off the range
+    actions, _, _ = model.act_numpy(_obs(3, SMALL), deterministic=True)
+    np.testing.assert_allclose(actions[:, 1], 2.0, atol=1e-6)
+    assert "action_low" not in model.state_dict() and "action_high" not in model.state_dict()
+
+
 def test_orthogonal_init_gains() -> None:
     model = build_policy(SMALL, DISCRETE)
     # An orthogonal (out, in) matrix with out <= in and gain g has rows of norm g.
