@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import tempfile
 from pathlib import Path
+from typing import get_args
 
 from common.action_space import ActionSpace
 from common.car_calibration import load_car
@@ -30,7 +31,7 @@ def run_eval(
     video: Path | None = None,
     car_calibration: str | Path | None = None,
     resets: bool = True,
-    greedy_action: GreedyAction | None = None,
+    greedy_action: str | None = None,
 ) -> dict:
     """Evaluate and return the record (summary and trials); optionally write a sim-trace CSV and a video.
     ``greedy_action`` (None: the run's) sets how a continuous policy acts (``Hyperparameters.greedy_action``)."""
@@ -55,8 +56,11 @@ def run_eval(
         return record
 
 
-def _with_greedy_action(runs: RunStore, run: RunConfig, greedy_action: GreedyAction) -> RunConfig:
-    """``run`` acting greedily by ``greedy_action``; OptionError for ``expected`` on a discrete action space."""
+def _with_greedy_action(runs: RunStore, run: RunConfig, greedy_action: str) -> RunConfig:
+    """``run`` acting greedily by ``greedy_action``; OptionError for another value than ``GreedyAction``'s, or for
+    ``expected`` on a discrete action space."""
+    if greedy_action not in get_args(GreedyAction):
+        raise OptionError(f"--greedy-action {greedy_action!r} is not one of {', '.join(get_args(GreedyAction))}")
     actions = ActionSpace.model_validate_json(runs.read_file(run.run_id, "model_metadata.json"))
     if greedy_action != "mean" and actions.discrete:
         raise OptionError(

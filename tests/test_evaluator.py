@@ -335,3 +335,5 @@ def test_racer_eval_refuses_greedy_action_expected_for_a_discrete_run_in_one_lin
     args = ["eval", "--run-id", "d", "--store", str(tmp_path), "--greedy-action", "expected"]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 2 and "--greedy-action expected: run 'd' has a discrete action space" in result.output
+    bad = CliRunner().invoke(app, [*args[:-1], "median"])
+    assert bad.exit_code == 2 and "--greedy-action 'median' is not one of mean, expected" in bad.output

@@ -8,7 +8,6 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from common.hyperparams import GreedyAction
 from racer.commands.options import Endpoint, JsonOut, Store, console, write_json
 
 
@@ -36,8 +35,10 @@ def evaluate(
             "(its race's number_of_resets); --no-resets ends a trial there, as racer's robust evaluation does.",
         ),
     ] = True,
+    # A plain str, checked in racer.evaluate: importing the choices' owner (common.hyperparams, pydantic) here would
+    # add 0.1 s to the start of every racer process, workers included.
     greedy_action: Annotated[
-        GreedyAction | None,
+        str | None,
         typer.Option(
             help="How a continuous policy acts: mean (its Gaussian's mean, DeepRacer's) or expected (the mean of its "
             "clipped action). Default: the run's greedy_action."
