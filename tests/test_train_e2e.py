@@ -94,7 +94,9 @@ def test_train_embedded_redis_starts_and_cleans_up(tmp_path):
         "--run-id",
         "emb",
         "--time-limit",
-        "25s",
+        # 25 s left one CI run (2026-11-28) without a sim-trace CSV, on a quiet machine; a little longer, and the
+        # assertion below now says what the worker and the launcher did if it happens again.
+        "35s",
         cwd=tmp_path,
         timeout=240,
     )
@@ -104,7 +106,8 @@ def test_train_embedded_redis_starts_and_cleans_up(tmp_path):
     # The worker logged its work, not a line per step (the sim-trace CSVs hold the steps).
     worker_log = (tmp_path / "runs" / "emb" / "logs" / "worker-0.log").read_text()
     assert "acting with policy version" in worker_log and "SIM_TRACE_LOG" not in worker_log
-    assert list((tmp_path / "runs" / "emb").glob("*/training-simtrace/*-iteration.csv"))
+    simtraces = list((tmp_path / "runs" / "emb").glob("*/training-simtrace/*-iteration.csv"))
+    assert simtraces, f"worker log:\n{worker_log[-3000:]}\nlauncher:\n{result.stdout[-3000:]}{result.stderr[-2000:]}"
     # No redis-server or racer role process of this run is left behind.
     ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True).stdout
     assert "--run-id emb" not in ps
