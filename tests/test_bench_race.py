@@ -148,6 +148,7 @@ def test_a_user_can_turn_the_benchs_collapse_guard_off(tmp_path) -> None:  # noq
     [
         ("--hyperparams", '{"stack_size": 0}', "stack_size", "0"),
         ("--reward-constants", '{"MARGIN": 0}', "MARGIN", "got 0"),
+        ("--hyperparams", '{"greedy_action": "expected"}', "greedy_action", "'expected'"),
         ("--randomization", '{"action_noise": 2}', "action_noise", "2"),
         ("--action-space", '{"action_space": [{"steering_angle": 0, "speed": "fast"}]}', "speed", "fast"),
         (

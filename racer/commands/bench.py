@@ -219,6 +219,12 @@ def race(
     if randomization:
         load_randomization(randomization)
     actions = load_race_actions(action_space) if action_space else None
+    if overrides.get("greedy_action", "mean") != "mean" and not isinstance(actions, dict):
+        # A discrete space acts by its argmax: refused now, naming the user's file, not after the limit has run.
+        raise HyperparametersError(
+            f"{hyperparams}: greedy_action {overrides['greedy_action']!r} applies to a continuous action space; "
+            "the bench's is discrete"
+        )
     settings = BenchRaceSettings(
         seed_numbers,
         minutes,
