@@ -298,8 +298,11 @@ class ActorCritic(nn.Module):
         """The action distribution for ``forward``'s parameters."""
         if self.action_kind == "discrete":
             return Categorical(logits=params)
-        std = (self.action_half * self.log_std.exp()).expand_as(params)
-        return Independent(Normal(params, std), 1)
+        return Independent(Normal(params, self._std().expand_as(params)), 1)
+
+    def _std(self) -> torch.Tensor:
+        """The Gaussian's standard deviation in the env's units, one per action dimension."""
+        return self.action_half * self.log_std.exp()
 
     def greedy(self, params: torch.Tensor) -> torch.Tensor:
         """The greedy action: the argmax of the logits; for continuous actions the Gaussian's mean, or with
@@ -307,8 +310,7 @@ class ActorCritic(nn.Module):
         if self.action_kind == "discrete":
             return params.argmax(-1)
         if self.cfg.greedy_action == "expected":
-            std = self.action_half * self.log_std.exp()
-            return censored_mean(params, std, self.action_low, self.action_high)
+            return censored_mean(params, self._std(), self.action_low, self.action_high)
         return params
 
     def distribution(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> Distribution:
