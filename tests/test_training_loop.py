@@ -103,6 +103,7 @@ def test_stale_and_malformed_segments_are_dropped_and_counted(redis_url, run_id,
     r.xadd(Keys(run_id).segments, {"junk": b"1"})
     assert trainer.read(block_ms=200) == 0
     assert trainer.stats.dropped == {"stale": 1, "bad_header": 1, "no_header": 1}
+    assert trainer.stats.dropped_steps == seg.steps == 16  # the malformed entries' steps are unknown
     assert trainer.buffer == []
     worker.close()
 

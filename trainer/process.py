@@ -96,6 +96,8 @@ class Stats:
     episodes: int = 0
     iteration: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
+    dropped_steps: int = 0
+    """Env steps in the dropped segments that could be decoded (a malformed one's steps are unknown)."""
     lag: deque[int] = field(default_factory=lambda: deque(maxlen=1000))
     """Policy lag of the most recent segments (bounded: a run lasts hours)."""
     recent: list[EpisodeSummary] = field(default_factory=list)
@@ -103,9 +105,10 @@ class Stats:
     """Segments accepted from each worker id."""
     started: float = field(default_factory=time.monotonic)
 
-    def drop(self, reason: str) -> None:
-        """Count a dropped segment."""
+    def drop(self, reason: str, steps: int = 0) -> None:
+        """Count a dropped segment (of ``steps`` env steps, where it could be read)."""
         self.dropped[reason] = self.dropped.get(reason, 0) + 1
+        self.dropped_steps += steps
 
 
 @dataclass
@@ -455,17 +458,17 @@ class Trainer:
         # first copy is still in flight (TCP delivers it once the network heals). Both copies are the same bytes.
         key = (seg.worker_id, seg.created)
         if key in self._seen:
-            self.stats.drop("duplicate")
+            self.stats.drop("duplicate", seg.steps)
             log.warning("dropped a duplicate segment from worker %s: a second copy of one already read", seg.worker_id)
             return 0
         self._seen.append(key)
         lag = self.version - seg.policy_version
         self.stats.lag.append(lag)
         if seg.policy_version < self.stability.floor:  # acted by a policy a rollback abandoned
-            self.stats.drop("rolled_back")
+            self.stats.drop("rolled_back", seg.steps)
             return 0
         if lag > self.run.max_policy_lag or lag < 0:
-            self.stats.drop("stale" if lag > 0 else "future_version")
+            self.stats.drop("stale" if lag > 0 else "future_version", seg.steps)
             return 0
         self.buffer.append(seg)
         self.stats.by_worker[seg.worker_id] = self.stats.by_worker.get(seg.worker_id, 0) + 1
@@ -681,6 +684,7 @@ class Trainer:
             "mean_policy_lag": statistics.fmean(lags) if lags else 0.0,
             "train_s": train_s,
             "dropped": dict(self.stats.dropped),
+            "dropped_steps": self.stats.dropped_steps,
             "collapses": self.stability.collapses,
             "rollbacks": self.stability.rollbacks,
             "slow_rollbacks": self.stability.slow_rollbacks,
@@ -734,6 +738,7 @@ class Trainer:
             "mean_progress": statistics.fmean(e.progress for e in recent) if recent else 0.0,
             "mean_reward": statistics.fmean(e.reward for e in recent) if recent else 0.0,
             "dropped": dict(self.stats.dropped),
+            "dropped_steps": self.stats.dropped_steps,
             "max_lag": max(list(self.stats.lag)[-200:], default=0),
             "workers": self.workers(),
             "silent_workers": sorted(self.silent),
