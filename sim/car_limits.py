@@ -76,6 +76,9 @@ class CarLimits:
     """The highest speed command the limits were measured for (the action space's), m/s."""
     steering_tau_s: float = 0.0
     """Time the wheels take to turn 63 % of a steering step, s (the controller's model of the steering lag)."""
+    speed_tau_s: float = 0.0
+    """Time the car takes to make 63 % of a small speed step on a straight, s (the controller's model of the speed
+    servo's lag)."""
 
     def to_dict(self) -> dict:
         """JSON-ready figures (what ``racer limit --json`` stores, so others can recompute the profile)."""
@@ -239,6 +242,7 @@ def measure_limits(car: CarCalibration | None = None, max_command_speed: float =
         min_turn_radius=_min_turn_radius(physics, held),
         max_command_speed=top_command,
         steering_tau_s=_steering_time_constant(physics),
+        speed_tau_s=_speed_time_constant(physics, top_command),
     )
 
 
@@ -269,6 +273,25 @@ def _steering_time_constant(physics: CarPhysics) -> float:
     a = np.array(angles) - angles[0]
     target = (1.0 - math.exp(-1.0)) * a[-1]
     k = int(np.argmax(a >= target))  # the first period at or past 63 %; a[0] = 0 is below it
+    return float((k - 1 + (target - a[k - 1]) / (a[k] - a[k - 1])) / CONTROL_HZ)
+
+
+SPEED_STEP_MPS = (2.0, 2.5)
+"""The speed step whose response gives :attr:`CarLimits.speed_tau_s`, commanded m/s: small enough that neither car
+meets its grip limit (the response is the servo's, not the tyres')."""
+
+
+def _speed_time_constant(physics: CarPhysics, top_command: float) -> float:
+    """Seconds the car takes to make 63 % of the speed step :data:`SPEED_STEP_MPS` (scaled into the action space's
+    range) on a straight, after 3 s at the first speed; the speed after 3 s more counts as the end of the step."""
+    low, high = (min(v, top_command) * 0.999 for v in SPEED_STEP_MPS)
+    settle, after = int(3 * CONTROL_HZ), int(3 * CONTROL_HZ)
+    speeds = _straight_run(physics, [low] * settle + [high] * after)[settle - 1 :]
+    a = speeds - speeds[0]
+    if a[-1] <= 1e-6:
+        return 0.0
+    target = (1.0 - math.exp(-1.0)) * a[-1]
+    k = int(np.argmax(a >= target))
     return float((k - 1 + (target - a[k - 1]) / (a[k] - a[k - 1])) / CONTROL_HZ)
 
 

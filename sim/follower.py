@@ -21,14 +21,16 @@ Every control period:
    misses what the car does between steady states (sliding, load transfer); the simulator does not.
 3. The best checked plan's first command is sent.
 
-The speed command is the car's top command where the profile ahead is faster than the car, its lowest where the
-profile ahead is slower (the profile's acceleration and braking were measured at those commands), and otherwise the
-profile's speed a little ahead (the command acts on the next control period and the wheels need a moment), divided
-by the car's speed-per-command ratio (its wheels slip slightly).
+The speed command reads the profile a little ahead (:data:`SPEED_LEAD_S`: the command acts on the next control
+period) and asks for the speed that takes the car's speed servo, a first-order lag of its measured time constant
+(``CarLimits.speed_tau_s``), from its speed to that one in the lead time (:func:`lead_speed`), divided by the car's
+speed-per-command ratio (its wheels slip slightly) and clipped to its commands.
 
-Measured on the 11 bundled loops (docs/racing.md, ``racer limit``): the default car is driven within 4.5 % of its
-limit on each; the Gazebo car finishes each, within 5 % on 9 at the first try on one machine and on 7 on another
-(2026-11-27: its lap at the limit turns the CPUs' last-digit differences in the line into different laps). Driven at
+Measured on the 11 bundled loops (docs/racing.md, ``racer limit``, 2026-11-28, one Intel Xeon): the default car is
+driven within 3.6 % of its limit on each, the Gazebo car within 5 % on 9 and within 5.5 % on all, each at the first
+try but one (before the lead speed, with full command or brake beyond 0.1 m/s of the profile: within 5 % on 7 and
+9.3 % on all, on the same kind of machine). Its lap at the limit is chaotic: the CPUs' last-digit differences in the
+line make different laps. Driven at
 its limit a car may still leave the track in one bend and not on a second try a little slower there: ``drive_line``
 slows the stretch before the place where a try left the track and tries again (:data:`PACE_STEP`), so the rest of
 the lap keeps the profile's speeds; a retry replays the earlier try's commands up to where its slower stretch is
@@ -57,8 +59,6 @@ from sim.world import CONTROL_HZ
 PERIOD_S = 1.0 / CONTROL_HZ
 SPEED_LEAD_S = 0.12
 """How far ahead (in time at the current speed) the speed command reads the profile, s."""
-ACCEL_MARGIN_MPS = 0.1
-"""Where the profile ahead is faster than the car by more than this, m/s, the follower commands full speed."""
 PLAN_ANGLES = np.linspace(-MAX_STEERING_DEG, MAX_STEERING_DEG, 13)
 """Steering commands the kinematic plan combines, degrees."""
 HORIZON_LAG_FACTOR, HORIZON_EXTRA_S = 2.0, 0.5
@@ -191,16 +191,9 @@ class LineFollower:
     def _speed_command(self, near: int, speed: float, profile: np.ndarray) -> float:
         ahead = self._s[near] + max(speed, 0.5) * SPEED_LEAD_S
         target = float(self._paced(ahead % self._s[-1], profile))
-        if target > speed + ACCEL_MARGIN_MPS:
-            # The profile's acceleration is the car's at full command (a velocity servo accelerates in proportion
-            # to its error): commanding the profile's own speed, the Gazebo car lost 0.36 s of a 7.6 s limit in
-            # the first 2 m of reInvent2019_track alone.
-            return self.limits.max_command_speed
-        if target < speed - ACCEL_MARGIN_MPS:
-            # Likewise the profile's braking is the car's at the lowest command: asked for the profile's speed, the
-            # Gazebo car's lagging velocity servo carried 0.5 m/s too much into reInvent2019_track's bends.
-            return SPEED_RANGE_MPS[0]
-        return target / self.limits.speed_per_command
+        command = lead_speed(speed, target, self.limits.speed_tau_s, SPEED_LEAD_S) / self.limits.speed_per_command
+        # min/max, not np.clip: this runs some 170 times a control period, and np.clip on a float costs microseconds
+        return min(max(command, SPEED_RANGE_MPS[0]), self.limits.max_command_speed)
 
     def _plan(self, physics: CarPhysics, profile: np.ndarray) -> np.ndarray:
         """The kinematic plan (horizon,) of steering commands with the least distance to the line."""
@@ -313,6 +306,22 @@ class LineFollower:
             near = self._nearest(here, near)
             cost += float(self._cost(here[None, :], near, 10 * DENSE_PER_POINT, np.array([pose.yaw]))[0])
         return cost
+
+
+def lead_speed(speed: float, target: float, tau_s: float, lead_s: float) -> float:
+    """The speed to command (m/s, before the car's speed-per-command ratio) so that a speed servo that follows its
+    command as a first-order lag of time constant ``tau_s`` goes from ``speed`` to ``target`` in ``lead_s``:
+    ``speed + (target - speed) / (1 - exp(-lead_s / tau_s))`` (``target`` itself for a servo without lag).
+
+    Why not the profile's own speed, nor full command or brake beyond a small band (racer before 2026-11-28): asked
+    for the profile's speed, the Gazebo car's servo (0.17 s) lags it, and lost 0.36 s of a 7.6 s limit in the first
+    2 m of reInvent2019_track; switched between full command and the lowest one at 0.1 m/s from the profile, it
+    kept braking for a servo time constant after each switch and fell 0.4-0.6 m/s below the profile out of
+    Vegas_track's bends. A large gap still saturates at full command or brake, the rates the profile was built on.
+    """
+    if tau_s <= 0.0:
+        return target
+    return speed + (target - speed) / (1.0 - math.exp(-lead_s / tau_s))
 
 
 @cache
