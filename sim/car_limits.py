@@ -278,13 +278,15 @@ def _steering_time_constant(physics: CarPhysics) -> float:
 
 SPEED_STEP_MPS = (2.0, 2.5)
 """The speed step whose response gives :attr:`CarLimits.speed_tau_s`, commanded m/s: small enough that neither car
-meets its grip limit (the response is the servo's, not the tyres')."""
+meets its grip limit (the response is the servo's, not the tyres'); scaled down for an action space slower than its
+top (DeepRacer's default space stops at 1 m/s: 0.8 to 1.0 m/s)."""
 
 
 def _speed_time_constant(physics: CarPhysics, top_command: float) -> float:
-    """Seconds the car takes to make 63 % of the speed step :data:`SPEED_STEP_MPS` (scaled into the action space's
-    range) on a straight, after 3 s at the first speed; the speed after 3 s more counts as the end of the step."""
-    low, high = (min(v, top_command) * 0.999 for v in SPEED_STEP_MPS)
+    """Seconds the car takes to make 63 % of the speed step :data:`SPEED_STEP_MPS` on a straight, after 3 s at the
+    first speed; the speed after 3 s more counts as the end of the step."""
+    scale = min(1.0, top_command / SPEED_STEP_MPS[1])
+    low, high = (v * scale for v in SPEED_STEP_MPS)
     settle, after = int(3 * CONTROL_HZ), int(3 * CONTROL_HZ)
     speeds = _straight_run(physics, [low] * settle + [high] * after)[settle - 1 :]
     a = speeds - speeds[0]

@@ -317,8 +317,10 @@ def lead_speed(speed: float, target: float, tau_s: float, lead_s: float) -> floa
     for the profile's speed, the Gazebo car's servo (0.17 s) lags it, and lost 0.36 s of a 7.6 s limit in the first
     2 m of reInvent2019_track; switched between full command and the lowest one at 0.1 m/s from the profile, it
     kept braking for a servo time constant after each switch and fell 0.4-0.6 m/s below the profile out of
-    Vegas_track's bends. A large gap still saturates at full command or brake, the rates the profile was built on.
-    """
+    Vegas_track's bends. A large gap still saturates at full command or brake, the rates the profile was built on;
+    but where the profile accelerates at the car's full-command rate out of a bend, this asks for less than full
+    command, and the Gazebo car falls 0.3-0.5 m/s behind the profile there (docs/racing.md: full command there
+    drove that car under its limit, which was not kept)."""
     if tau_s <= 0.0:
         return target
     return speed + (target - speed) / (1.0 - math.exp(-lead_s / tau_s))

@@ -226,6 +226,9 @@ def test_the_steering_time_constant_is_measured_from_the_car() -> None:
     # and 0.17 s, 2026-11-28; its file's speed lag behind the wheel-velocity PID).
     assert measure_limits().speed_tau_s < 0.09
     assert 0.12 < gazebo.speed_tau_s < 0.25
+    # An action space slower than the step (DeepRacer's default, 1 m/s) still measures a lag, on a smaller step.
+    slow = measure_limits(load_car("deepracer-gazebo"), max_command_speed=1.0)
+    assert 0.08 < slow.speed_tau_s < 0.3
     assert 0.3 < gazebo.min_turn_radius < 1.0  # the lagging car still has a finite full-lock radius
 
 
