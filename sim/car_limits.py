@@ -270,7 +270,12 @@ def _steering_time_constant(physics: CarPhysics) -> float:
         physics.command(STEP_DEG, 1.0)
         physics.step()
         angles.append(physics.steering_deg)
-    a = np.array(angles) - angles[0]
+    return _time_constant(np.array(angles) - angles[0])
+
+
+def _time_constant(a: np.ndarray) -> float:
+    """Seconds a step response ``a`` (one sample a control period, a[0] = 0, a[-1] its end) takes to reach 63 %
+    (1 - 1/e) of its end, interpolated between control periods."""
     target = (1.0 - math.exp(-1.0)) * a[-1]
     k = int(np.argmax(a >= target))  # the first period at or past 63 %; a[0] = 0 is below it
     return float((k - 1 + (target - a[k - 1]) / (a[k] - a[k - 1])) / CONTROL_HZ)
@@ -290,11 +295,7 @@ def _speed_time_constant(physics: CarPhysics, top_command: float) -> float:
     settle, after = int(3 * CONTROL_HZ), int(3 * CONTROL_HZ)
     speeds = _straight_run(physics, [low] * settle + [high] * after)[settle - 1 :]
     a = speeds - speeds[0]
-    if a[-1] <= 1e-6:
-        return 0.0
-    target = (1.0 - math.exp(-1.0)) * a[-1]
-    k = int(np.argmax(a >= target))
-    return float((k - 1 + (target - a[k - 1]) / (a[k] - a[k - 1])) / CONTROL_HZ)
+    return _time_constant(a) if a[-1] > 1e-6 else 0.0
 
 
 CACHE_DIR_ENV = "RACER_CACHE_DIR"
