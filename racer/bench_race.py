@@ -380,6 +380,17 @@ def training_randomization(path: str | None) -> dict[str, Any]:
     return (load_randomization(path) if path else RandomizationConfig()).model_dump(mode="json")
 
 
+def seconds_text(value: float | None) -> str:
+    """A figure in seconds for the console, to the hundredth (a mean lap of 1/15 s steps prints as 12.019999999999957
+    otherwise); ``-`` where a seed never reached it."""
+    return "-" if value is None else f"{value:.2f} s"
+
+
+def shares_text(shares: dict[str, float] | None) -> str:
+    """``command_speeds`` for the console: each speed's share of the steps in per cent."""
+    return "-" if not shares else ", ".join(f"{speed} m/s {share:.0%}" for speed, share in shares.items())
+
+
 def median_known(values: list[float | None]) -> float | None:
     """The median of the values that are known (None: a seed that never reached the figure); None if none is. The
     result says how many seeds it is over (``robust_seeds``): with one seed of three never robust, this is the
@@ -406,11 +417,11 @@ def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> 
         seeds.append(figures)
         if progress:
             progress.print(
-                f"seed {seed}: robust after {figures['time_to_robust_s']} s, best robust lap "
-                f"{figures['best_robust_lap_s']} s, collapses {figures['collapses']}, "
+                f"seed {seed}: robust after {seconds_text(figures['time_to_robust_s'])}, best robust lap "
+                f"{seconds_text(figures['best_robust_lap_s'])}, collapses {figures['collapses']}, "
                 f"final completion {figures['final_completion']:.2f}, "
-                f"late robust lap {figures['late_robust_lap_s']} s, "
-                f"the best's share of steps at each commanded speed {figures['best_command_speeds']}",
+                f"late robust lap {seconds_text(figures['late_robust_lap_s'])}, "
+                f"the best's steps at each commanded speed: {shares_text(figures['best_command_speeds'])}",
                 highlight=False,
             )
     keys = (

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import statistics
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -359,3 +360,13 @@ def test_a_continuous_action_space_trains_the_seeds_and_its_speeds_are_counted_i
     assert command_speeds(record, 0.25) == {"1.5": 0.5, "1.75": 0.25, "3.75": 0.25}
     assert list(command_speeds(record, 0.25)) == ["1.5", "1.75", "3.75"]
     assert command_speeds(record) == {"1.5": 0.25, "1.74": 0.25, "1.75": 0.25, "3.8": 0.25}  # a discrete space's
+
+
+def test_console_figures_are_rounded_and_say_when_a_seed_never_got_there() -> None:
+    from racer.bench_race import seconds_text, shares_text
+
+    # A mean of laps counted in 1/15 s steps is not a round float (12.02 printed as 12.019999999999957).
+    assert seconds_text(statistics.fmean([12.0 + 1 / 15, 11.0 + 14 / 15, 12.0 + 1 / 15])) == "12.02 s"
+    assert seconds_text(None) == "-"
+    assert shares_text({"1.5": 0.3134, "1.75": 0.6866}) == "1.5 m/s 31%, 1.75 m/s 69%"
+    assert shares_text(None) == shares_text({}) == "-"

@@ -204,7 +204,14 @@ def race(
     from common.car_calibration import load_car
     from common.hyperparams import HyperparametersError, load_hyperparameters
     from common.jsonfile import read_json_object
-    from racer.bench_race import BenchRaceSettings, bench_race, load_race_actions, load_reward_constants, plot_race
+    from racer.bench_race import (
+        BenchRaceSettings,
+        bench_race,
+        load_race_actions,
+        load_reward_constants,
+        plot_race,
+        seconds_text,
+    )
     from racer.runconfig import load_randomization
     from sim.track import load_track
 
@@ -242,10 +249,10 @@ def race(
         plot_race(result, png)
     ratio = result["ratio_to_limit"]
     console.print(
-        f"median best robust lap {result['best_robust_lap_s']} s, limit {result['limit_s']:.2f} s"
+        f"median best robust lap {seconds_text(result['best_robust_lap_s'])}, limit {result['limit_s']:.2f} s"
         + (f" ({ratio:.2f} x)" if ratio else "")
         + f", collapses {result['collapses']} ({result['collapses_recovered']} recovered)"
-        + f", late robust lap {result['late_robust_lap_s']} s",
+        + f", late robust lap {seconds_text(result['late_robust_lap_s'])}",
         highlight=False,
     )
     write_json(result, json_out)
