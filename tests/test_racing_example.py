@@ -54,14 +54,21 @@ def test_it_pays_for_the_line_at_its_speed_more_than_for_the_centre_slowly() -> 
     assert fn(finished) > fn(on_line) + 1.0  # a completed lap pays a bonus
 
 
-def _lap_return(fn, params: dict, line: list, speeds: list, steps: int) -> float:
-    """What a whole lap on the line at its target speeds, taking ``steps`` steps, earns (undiscounted)."""
-    total, n = 0.0, len(line)
+def _lap_partials(fn, params: dict, line: list, speeds: list, steps: int) -> list[float]:
+    """What a lap on the line at its target speeds, taking ``steps`` steps, has earned after each step
+    (undiscounted; the last is the whole lap's return)."""
+    total, partial, n = 0.0, [], len(line)
     for step in range(1, steps + 1):
         i = min(int(n * step / steps), n - 1)
         at = dict(x=line[i][0], y=line[i][1], speed=speeds[i], closest_waypoints=[i, (i + 1) % n])
         total += fn(dict(params, **at, steps=step, progress=100.0 * step / steps))
-    return total
+        partial.append(total)
+    return partial
+
+
+def _lap_return(fn, params: dict, line: list, speeds: list, steps: int) -> float:
+    """What a whole lap on the line at its target speeds, taking ``steps`` steps, earns (undiscounted)."""
+    return _lap_partials(fn, params, line, speeds, steps)[-1]
 
 
 def test_a_faster_lap_earns_more_than_a_slower_one() -> None:
@@ -78,14 +85,9 @@ def test_a_faster_lap_earns_more_than_a_slower_one() -> None:
 
 
 def _lap_and_failure(fn, params: dict, line: list, speeds: list, steps: int) -> tuple[float, float]:
-    """A lap's return (:func:`_lap_return`) and the mean return of the same lap lost at a uniformly random step."""
-    total, partial, n = 0.0, [], len(line)
-    for step in range(1, steps + 1):
-        i = min(int(n * step / steps), n - 1)
-        at = dict(x=line[i][0], y=line[i][1], speed=speeds[i], closest_waypoints=[i, (i + 1) % n])
-        total += fn(dict(params, **at, steps=step, progress=100.0 * step / steps))
-        partial.append(total)
-    return total, sum(partial[:-1]) / (steps - 1)
+    """A lap's return and the mean return of the same lap lost at a uniformly random step."""
+    partial = _lap_partials(fn, params, line, speeds, steps)
+    return partial[-1], sum(partial[:-1]) / (steps - 1)
 
 
 def test_lap_bonus_pays_every_completed_lap_and_lowers_the_risk_a_faster_lap_is_worth(
