@@ -10,9 +10,11 @@ through knots 0.4 m apart, with steep penalties for leaving the corridor and for
 turns; torch gives the gradient and scipy's L-BFGS-B does the search. The first point's offset is 0: a lap starts
 where the env starts the car, on the centre line at waypoint 0.
 
-The speed profile then applies the acceleration and braking limits with a forward and a backward pass (the full
-limits in a curve too: see ``_grip_left``). The lap time is a standing start from rest, as racer's evaluator times
-a lap; the flying lap (periodic profile) is reported beside it.
+The speed profile then applies the acceleration and braking limits with a forward and a backward pass (in a curve,
+what the tyres have left beside turning: ``longitudinal_budget``). The lap time is a standing start from rest, as
+racer's evaluator times a lap; the flying lap (periodic profile) is reported beside it. The optimiser's own profile
+uses constant rates without that budget (its closed form needs them), so it shapes the line on a slightly faster
+car than the one the reported profile is computed for.
 """
 
 from __future__ import annotations
@@ -282,28 +284,44 @@ def speed_profile(
 
 
 def _passes(ds: np.ndarray, v_lim: np.ndarray, k: np.ndarray, limits: CarLimits, v0: float) -> np.ndarray:
-    """Forward (acceleration) and backward (braking) passes on the friction ellipse; len(v_lim) = len(ds) + 1."""
+    """Forward (acceleration) and backward (braking) passes inside the tyres' budget (:func:`longitudinal_budget`);
+    len(v_lim) = len(ds) + 1."""
     if len(v_lim) == len(ds):
         v_lim, k = np.append(v_lim, v_lim[-1]), np.append(k, k[-1])
     v = v_lim.astype(np.float64).copy()
     v[0] = v0
+    grip = lateral_grip(limits)
+    accel_peak, brake_peak = max(grip, max(limits.accel)), max(grip, max(limits.brake))
     for i in range(len(ds)):
-        grip = _grip_left(v[i], k[i], limits)
-        v[i + 1] = min(v[i + 1], math.sqrt(v[i] ** 2 + 2.0 * float(limits.accel_at(v[i])) * grip * ds[i]))
+        a = longitudinal_budget(float(limits.accel_at(v[i])), v[i], k[i], accel_peak, grip)
+        v[i + 1] = min(v[i + 1], math.sqrt(v[i] ** 2 + 2.0 * a * ds[i]))
     for i in range(len(ds) - 1, -1, -1):
-        grip = _grip_left(v[i + 1], k[i + 1], limits)
-        v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2.0 * float(limits.brake_at(v[i + 1])) * grip * ds[i]))
+        b = longitudinal_budget(float(limits.brake_at(v[i + 1])), v[i + 1], k[i + 1], brake_peak, grip)
+        v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2.0 * b * ds[i]))
     return v
 
 
-def _grip_left(v: float, kappa: float, limits: CarLimits) -> float:
-    """Fraction of the longitudinal limit left while holding curvature ``kappa`` at speed ``v``.
+def lateral_grip(limits: CarLimits) -> float:
+    """The largest lateral acceleration the car held in any cornering trial, m/s²: the lateral radius of its tyres'
+    friction ellipse."""
+    return max(float(max(limits.max_lateral_accel)), 1e-6)
 
-    1: this car accelerates and brakes in a curve as on a straight. A friction ellipse (sqrt(1 - (kappa/kmax)²))
-    was tried and measured wrong here: its 6.83 s limit on reinvent_base was beaten by the controller driving the
-    profile without it (6.53 s), and a limit must not be beaten. The wheel servos' force limit, not the tyres'
-    grip, bounds the acceleration (5.4 m/s² against ~7 m/s² of lateral grip)."""
-    return 1.0
+
+def longitudinal_budget(rate: float, v: float, kappa: float, peak: float, grip: float) -> float:
+    """The acceleration or braking (m/s²) the car has left while it holds curvature ``kappa`` at speed ``v``: the
+    straight-line ``rate`` (the motors' limit), capped by a friction ellipse whose radii are ``peak`` (the largest
+    rate measured in that direction, at least ``grip``) along the car and ``grip`` (:func:`lateral_grip`) across it.
+
+    Why: the tyres give one force, shared between turning and braking. Without it the Gazebo car (tyre mu 0.44,
+    braking at 4 m/s² on a straight and cornering at up to 3.9 m/s²) was asked to brake at its full straight-line
+    rate into AWS_track's hairpins while turning at its grip limit; it entered them 0.7 m/s above the profile and
+    the controller's lap was 8.6 % over the limit (Oval_track 5.8 %); with it, 4.2 % and 4.8 % (docs/racing.md,
+    2026-11-28). A default car's motors (5.6 m/s²) are well inside its grip (7.8 m/s²), so the ellipse only
+    binds near its lateral limit. An earlier ellipse scaled the motors' own rate by sqrt(1 - (kappa / kmax)²),
+    leaving no braking at the grip limit even for the default car: its 6.83 s limit on reinvent_base was beaten
+    by the controller at 6.53 s, so it was dropped (2026-11-25)."""
+    lateral = v * v * abs(kappa)
+    return min(rate, peak * math.sqrt(max(1.0 - (lateral / grip) ** 2, 0.0)))
 
 
 def racing_line(track: Track, limits: CarLimits, margin: float = DEFAULT_MARGIN_M) -> RacingLine:

@@ -85,6 +85,41 @@ def test_braking_before_a_curve_matches_hand_computed_speeds() -> None:
     assert v[180] == pytest.approx(3.0)  # 2 m before: still at top speed
 
 
+def test_the_tyres_budget_is_an_ellipse_capped_by_the_motors() -> None:
+    from sim.raceline import longitudinal_budget
+
+    # Radii: 5 m/s² along the car, 4 m/s² across it; the motors give 3 m/s².
+    assert longitudinal_budget(3.0, 2.0, 0.0, 5.0, 4.0) == 3.0  # straight: the motors' rate
+    assert longitudinal_budget(3.0, 2.0, 0.8, 5.0, 4.0) == pytest.approx(3.0)  # 3.2 m/s² across: 5 x 0.6 = 3
+    assert longitudinal_budget(3.0, 2.0, 0.9, 5.0, 4.0) == pytest.approx(5.0 * math.sqrt(1 - 0.9**2))  # 3.6 across
+    assert longitudinal_budget(3.0, 2.0, -1.0, 5.0, 4.0) == 0.0  # at the grip limit: none left (either turn)
+    assert longitudinal_budget(3.0, 3.0, 1.0, 5.0, 4.0) == 0.0  # beyond it: none, not a complex number
+
+
+def test_braking_into_a_curve_at_the_grip_limit_starts_earlier() -> None:
+    # A car holding 4, 2, 1 and 0.5 1/m at 0.5, 1, 2 and 3 m/s: its lateral grip is 4.5 m/s² (at 3 m/s), braking
+    # 4 m/s², accelerating 2 m/s². A curve of 1/m from point 200 to 249 is taken at 2 m/s, 4 m/s² across the car:
+    # the tyres leave 4.5 x sqrt(1 - (4 / 4.5)²) = 2.06 m/s² for braking there, so the last 0.1 m before the curve
+    # is braked at that, the rest at 4 m/s². Out of the curve the motors' 2 m/s² is below the tyres' 2.06.
+    speeds = [0.5, 1.0, 2.0, 3.0]
+    kmax = [4.0, 2.0, 1.0, 0.5]
+    lim = replace(
+        flat_limits(),
+        speeds=speeds,
+        max_curvature=kmax,
+        max_lateral_accel=[v * v * k for v, k in zip(speeds, kmax, strict=True)],
+    )
+    ds = np.full(400, 0.1)
+    kappa = np.zeros(400)
+    kappa[200:250] = 1.0
+    v, _ = speed_profile(ds, kappa, lim, v_start=0.0)
+    tyres = 4.5 * math.sqrt(1 - (4.0 / 4.5) ** 2)
+    assert v[200] == pytest.approx(2.0)
+    assert v[199] == pytest.approx(math.sqrt(4.0 + 2 * tyres * 0.1), rel=1e-9)
+    assert v[195] == pytest.approx(math.sqrt(v[199] ** 2 + 2 * 4.0 * 0.4), rel=1e-9)
+    assert v[250] == pytest.approx(math.sqrt(4.0 + 2 * 2.0 * 0.1), rel=1e-9)
+
+
 def test_the_optimisers_smooth_lap_time_matches_the_exact_profile() -> None:
     """The line search minimises a smooth closed-form lap time; on the braking case above it must agree with the
     exact passes (hand-checked there) within 1 %, or the optimiser would chase a different lap than the one
