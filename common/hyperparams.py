@@ -23,7 +23,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, ValidationInfo, field_validator
 
-from common.errors import UserError
+from common.errors import OptionError, UserError
 from common.jsonfile import read_json_object
 
 # The keys DeepRacer itself writes, in the order its console writes them.
@@ -48,6 +48,7 @@ STABILITY_KEYS: tuple[str, ...] = (
     "target_kl",
     "lr_schedule",
     "lr_final_fraction",
+    "lr_cooldown",
     "entropy_schedule",
     "entropy_final_fraction",
     "schedule_updates",
@@ -162,7 +163,11 @@ class Hyperparameters(BaseModel):
     """racer: ``constant`` (DeepRacer) or ``linear``: ``lr`` decays to ``lr * lr_final_fraction`` over
     ``schedule_updates`` policy updates."""
     lr_final_fraction: float = Field(0.1, ge=0, le=1)
-    """racer: the linear learning-rate schedule's final value, a fraction of ``lr``."""
+    """racer: the final value of the linear learning-rate schedule and of the cool-down, a fraction of ``lr``."""
+    lr_cooldown: float | None = Field(None, gt=0, le=1)
+    """racer: over this last share of the run's time limit (``--time-limit``), the learning rate falls linearly to
+    ``lr_final_fraction`` of what it would be (0.2: the last fifth), so that a run ends on small updates, as PPO's
+    own schedule anneals its rate to the end of training; None = no cool-down (DeepRacer). Needs a time limit."""
     entropy_schedule: Literal["constant", "linear"] = "constant"
     """racer: ``constant`` (DeepRacer) or ``linear``: ``beta_entropy`` decays to ``beta_entropy *
     entropy_final_fraction`` over ``schedule_updates`` policy updates."""
@@ -233,8 +238,8 @@ class Hyperparameters(BaseModel):
     def _idle_stability_keys(self, given: set[str]) -> list[str]:
         """Stability knobs given in the file whose switch is off, so that they change nothing."""
         idle = []
-        if self.lr_schedule == "constant" and "lr_final_fraction" in given:
-            idle.append("lr_final_fraction (only with lr_schedule linear)")
+        if self.lr_schedule == "constant" and self.lr_cooldown is None and "lr_final_fraction" in given:
+            idle.append("lr_final_fraction (only with lr_schedule linear or lr_cooldown)")
         if self.entropy_schedule == "constant" and "entropy_final_fraction" in given:
             idle.append("entropy_final_fraction (only with entropy_schedule linear)")
         if self.lr_schedule == self.entropy_schedule == "constant" and "schedule_updates" in given:
@@ -308,3 +313,12 @@ def _describe(exc: ValidationError) -> str:
         else:
             parts.append(f"{key} = {json.dumps(err['input'], default=repr)}: {err['msg']}")
     return "; ".join(parts)
+
+
+def check_cooldown(lr_cooldown: float | None, time_limit_s: float | None) -> None:
+    """Refuse a learning-rate cool-down (``lr_cooldown``) without a time limit to count it back from."""
+    if lr_cooldown is not None and time_limit_s is None:
+        raise OptionError(
+            f"hyperparameters.json: lr_cooldown {lr_cooldown} needs a time limit to cool down towards: "
+            "give --time-limit, or remove lr_cooldown"
+        )

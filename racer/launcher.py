@@ -18,6 +18,7 @@ from rich.live import Live
 
 from common.bus import Bus
 from common.config import RunConfig
+from common.hyperparams import check_cooldown
 from common.redis_util import connect, connect_checked, redact
 from model_store import LocalStore, RunStore, open_store
 from model_store.runs import local_run_dir, run_prefix
@@ -122,6 +123,7 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
     Returns the trainer's last status. Raises RoleFailed if the trainer fails or every worker has stopped.
     """
     console = console or Console()
+    check_cooldown(run.hyperparams.lr_cooldown, opts.time_limit_s)
     _check_store(opts.store, opts.s3_endpoint)
     if opts.redis_url:
         connect_checked(opts.redis_url).close()  # a wrong URL or password fails here, before any process starts
@@ -140,6 +142,9 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
         trainer_args = ["trainer", "--config", str(config_path), "--files", str(work), *common]
         trainer_args += ["--resume"] if opts.resume else []
         trainer_args += ["--threads", str(opts.trainer_threads), "--precision", opts.precision]
+        # The trainer counts its learning-rate cool-down (lr_cooldown) back from the same limit; the watch below
+        # still stops every process at this process's deadline, which comes first.
+        trainer_args += ["--time-limit", f"{opts.time_limit_s}s"] if opts.time_limit_s is not None else []
         trainer = spawn_role(trainer_args, logs / "trainer.log")
         workers = [
             spawn_role(_worker_args(run.run_id, k, common), logs / f"worker-{k}.log") for k in range(opts.workers)

@@ -172,6 +172,9 @@ def test_unknown_key_is_a_typo(tmp_path: Path) -> None:
         ("target_kl", True),
         ("lr_schedule", "cosine"),
         ("lr_final_fraction", 1.5),
+        ("lr_cooldown", 0),
+        ("lr_cooldown", 1.5),
+        ("lr_cooldown", True),
         ("entropy_schedule", "exponential"),
         ("entropy_final_fraction", -0.1),
         ("schedule_updates", 0),
@@ -229,6 +232,7 @@ STABILITY_FILE = {
     "target_kl": 0.02,
     "lr_schedule": "linear",
     "lr_final_fraction": 0.2,
+    "lr_cooldown": 0.2,
     "entropy_schedule": "linear",
     "entropy_final_fraction": 0.0,
     "schedule_updates": 300,
@@ -269,11 +273,13 @@ def test_collapse_guard_takes_true_and_false_where_numbers_refuse_them(tmp_path:
 def test_knobs_whose_switch_is_off_are_listed_as_unused(tmp_path: Path) -> None:
     data = {"lr_final_fraction": 0.2, "schedule_updates": 50, "collapse_drop": 0.3, "collapse_lr_factor": 0.1}
     listed = " ".join(load_hyperparameters(_write(tmp_path, json.dumps(data))).ignored())
-    assert "lr_final_fraction (only with lr_schedule linear)" in listed
+    assert "lr_final_fraction (only with lr_schedule linear or lr_cooldown)" in listed
     assert "schedule_updates (only with a linear schedule)" in listed
     assert "collapse_drop (only with collapse_guard true)" in listed and "collapse_lr_factor" in listed
     switched_on = data | {"lr_schedule": "linear", "collapse_guard": True}
     assert load_hyperparameters(_write(tmp_path, json.dumps(switched_on))).ignored() == []
+    cooled = {"lr_final_fraction": 0.2, "lr_cooldown": 0.25}  # the cool-down reads lr_final_fraction too
+    assert load_hyperparameters(_write(tmp_path, json.dumps(cooled))).ignored() == []
 
 
 @pytest.mark.parametrize(("key", "meant"), [("collapse_gaurd", "collapse_guard"), ("target-kl", "target_kl")])

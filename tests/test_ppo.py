@@ -12,6 +12,7 @@ from trainer.ppo import (
     PPOBatch,
     approx_kl,
     compute_gae,
+    cooldown_factor,
     entropy_bonus,
     explained_variance,
     kl_exceeded,
@@ -197,6 +198,17 @@ def test_schedule_refuses_an_unknown_kind_or_no_length() -> None:
         scheduled("cosine", 1.0, 0.1, 0, 10)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="at least 1"):
         scheduled("linear", 1.0, 0.1, 0, 0)
+
+
+def test_cooldown_by_hand() -> None:
+    # A 1000 s limit, the last 20 % (200 s) cooling to 10 %: 1 until 200 s are left, then 0.1 + 0.9 * left / 200.
+    values = [cooldown_factor(left, 1000.0, 0.2, 0.1) for left in (1000.0, 500.0, 200.0, 150.0, 100.0, 0.0, -5.0)]
+    assert values == pytest.approx([1.0, 1.0, 1.0, 0.775, 0.55, 0.1, 0.1])
+    assert cooldown_factor(30.0, 60.0, 1.0, 0.0) == pytest.approx(0.5)  # the whole run, to zero
+    with pytest.raises(ValueError, match="time limit"):
+        cooldown_factor(10.0, 0.0, 0.2, 0.1)
+    with pytest.raises(ValueError, match="share"):
+        cooldown_factor(10.0, 100.0, 0.0, 0.1)
 
 
 # --- value_loss, entropy, normalization, explained variance -----------------------------------------

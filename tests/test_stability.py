@@ -9,17 +9,20 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 
 import pytest
 import redis
 import torch
 
 from common.bus import Bus
+from common.errors import OptionError
 from common.keys import Keys
 from common.policy import checkpoint_from_bytes, state_dict_from_bytes
 from common.protocol import PolicyVersion
 from model_store import RunStore, open_store
 from model_store.runs import METRICS_FILE
+from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker
 from tests.test_training_loop import fill, start
 from trainer.evaluator import evaluation_summary, save_evaluation, score
@@ -280,3 +283,27 @@ def test_a_drift_to_slower_laps_rolls_back_with_collapse_slowdown(redis_url, run
     assert "v2, v3 completed 1.00, 1.00 of their evaluation trials against best v1's 1.00" in lines[0]
     assert "mean laps 9.50, 9.40 s against its 8.00 s (slower than 9.20 s)" in lines[0]
     worker.close()
+
+
+def test_the_cool_down_lowers_the_learning_rate_towards_the_time_limit(redis_url, run_id, tmp_path) -> None:
+    """``lr_cooldown`` 0.5 of a 100 s limit, cooling to ``lr_final_fraction`` 0.1: with 25 s left the rate is
+    0.001 * (0.1 + 0.9 * 25 / 50), times a rollback's scale; with more than 50 s left it is ``lr``."""
+    path = tmp_path / "hyperparameters.json"
+    path.write_text(json.dumps({"lr": 0.001, "lr_cooldown": 0.5, "lr_final_fraction": 0.1}))
+    run, files = build_run(run_id, track="Straight_track", hyperparams=str(path))
+    trainer = Trainer(run, TrainerOptions(redis_url, str(tmp_path / "store"), time_limit_s=100.0, run_files=files))
+    assert trainer.learning_rate() == pytest.approx(0.001)  # not started: no deadline yet
+    trainer.deadline = time.monotonic() + 80.0
+    assert trainer.learning_rate() == pytest.approx(0.001)
+    trainer.deadline = time.monotonic() + 25.0
+    assert trainer.learning_rate() == pytest.approx(0.001 * (0.1 + 0.9 * 0.5), rel=1e-3)
+    trainer.stability.lr_scale = 0.5
+    assert trainer.learning_rate() == pytest.approx(0.0005 * (0.1 + 0.9 * 0.5), rel=1e-3)
+
+
+def test_a_cool_down_without_a_time_limit_is_refused(redis_url, run_id, tmp_path) -> None:
+    path = tmp_path / "hyperparameters.json"
+    path.write_text(json.dumps({"lr_cooldown": 0.2}))
+    run, files = build_run(run_id, track="Straight_track", hyperparams=str(path))
+    with pytest.raises(OptionError, match=r"hyperparameters.json: lr_cooldown 0.2 needs a time limit"):
+        Trainer(run, TrainerOptions(redis_url, str(tmp_path / "store"), run_files=files))

@@ -231,6 +231,19 @@ def kl_exceeded(kl: float, target_kl: float | None) -> bool:
     return target_kl is not None and kl > target_kl
 
 
+def cooldown_factor(remaining_s: float, limit_s: float, share: float, final_fraction: float) -> float:
+    """The cool-down's multiplier of the learning rate with ``remaining_s`` of a ``limit_s`` time limit left: 1
+    until the last ``share`` of the limit, then linearly down to ``final_fraction`` at its end (and that after
+    it)::
+
+        final_fraction + (1 - final_fraction) * clip(remaining_s / (share * limit_s), 0, 1)
+    """
+    if limit_s <= 0 or not 0 < share <= 1:
+        raise ValueError(f"cool-down needs a positive time limit and a share in (0, 1], got {limit_s}, {share}")
+    left = min(max(remaining_s / (share * limit_s), 0.0), 1.0)
+    return final_fraction + (1.0 - final_fraction) * left
+
+
 def scheduled(kind: ScheduleKind, initial: float, final_fraction: float, k: int, length: int) -> float:
     """A schedule's value before policy update ``k`` (0 = the first update).
 

@@ -30,6 +30,7 @@ import torch
 
 from common.bus import Bus
 from common.config import PretrainedError, RunConfig
+from common.hyperparams import check_cooldown
 from common.policy import (
     ActorCritic,
     Precision,
@@ -50,7 +51,7 @@ from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
 from model_store.runs import METRICS_FILE, checkpoint_key, evaluation_name, local_run_dir
 from sim.env import RacerEnv
-from trainer.ppo import PPOBatch, compute_gae, scheduled, update
+from trainer.ppo import PPOBatch, compute_gae, cooldown_factor, scheduled, update
 from trainer.precision import fastest, precision_candidates, time_precisions
 
 log = logging.getLogger("racer.trainer")
@@ -252,6 +253,9 @@ class Trainer:
         self.silent: dict[str, dict] = {}
         """Workers whose heartbeat expired: worker id → their last heartbeat."""
         self.hp = run.hyperparams
+        check_cooldown(self.hp.lr_cooldown, opts.time_limit_s)
+        self.deadline: float | None = None
+        """When ``run_forever`` stops for the time limit (``time.monotonic()``); None before it or without a limit."""
         self.version = 0
         self.stats = Stats()
         self.buffer: list[Segment] = []
@@ -413,6 +417,7 @@ class Trainer:
     def run_forever(self) -> None:
         """Read, train, publish until stopped or out of time."""
         deadline = None if self.opts.time_limit_s is None else time.monotonic() + self.opts.time_limit_s
+        self.deadline = deadline
         last_status = 0.0
         while not self.stop.is_set() and (deadline is None or time.monotonic() < deadline):
             self.redis_outage.call("read segments", lambda: self.read(block_ms=500))
@@ -540,6 +545,9 @@ class Trainer:
         DeepRacer) times the rollbacks' ``lr_scale``."""
         hp = self.hp
         base = scheduled(hp.lr_schedule, hp.lr, hp.lr_final_fraction, self.stats.iteration, hp.schedule_updates)
+        if hp.lr_cooldown is not None and self.deadline is not None and self.opts.time_limit_s is not None:
+            left = self.deadline - time.monotonic()
+            base *= cooldown_factor(left, self.opts.time_limit_s, hp.lr_cooldown, hp.lr_final_fraction)
         return base * self.stability.lr_scale
 
     def entropy_coef(self) -> float:
