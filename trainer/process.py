@@ -542,7 +542,9 @@ class Trainer:
 
     def learning_rate(self) -> float:
         """The learning rate of the next policy update: the schedule's value (``lr`` itself when constant, as in
-        DeepRacer) times the rollbacks' ``lr_scale``."""
+        DeepRacer), times the cool-down's factor in the last ``lr_cooldown`` of the time limit, times the rollbacks'
+        ``lr_scale``. The time limit counts from the start of ``run_forever``: under ``racer train`` the trainer's
+        own start-up (a few seconds) is spent before it, so the run is stopped a little before the cool-down's end."""
         hp = self.hp
         base = scheduled(hp.lr_schedule, hp.lr, hp.lr_final_fraction, self.stats.iteration, hp.schedule_updates)
         if hp.lr_cooldown is not None and self.deadline is not None and self.opts.time_limit_s is not None:
