@@ -416,10 +416,9 @@ class Trainer:
     # --- the loop -----------------------------------------------------------------------------
     def run_forever(self) -> None:
         """Read, train, publish until stopped or out of time."""
-        deadline = None if self.opts.time_limit_s is None else time.monotonic() + self.opts.time_limit_s
-        self.deadline = deadline
+        self.deadline = None if self.opts.time_limit_s is None else time.monotonic() + self.opts.time_limit_s
         last_status = 0.0
-        while not self.stop.is_set() and (deadline is None or time.monotonic() < deadline):
+        while not self.stop.is_set() and (self.deadline is None or time.monotonic() < self.deadline):
             self.redis_outage.call("read segments", lambda: self.read(block_ms=500))
             if self.ready():
                 self.train()
