@@ -17,6 +17,7 @@ import pytest
 
 from common.car_calibration import CalibrationError, load_car
 from sim.car_limits import CarLimits, measure_limits
+from sim.follower import CORRIDOR_TRIES
 from sim.physics import WHEELBASE_M
 from sim.raceline import _curvature, corridor, racing_line, speed_profile
 from sim.track import load_track
@@ -194,7 +195,7 @@ def test_racer_limit_drives_its_limit_within_5_percent(tmp_path: Path) -> None:
     for key in ("lap_time_s", "driven_lap_time_s", "line_length_m", "car_limits", "flying_lap_time_s", "driven_pace"):
         assert key in report
     assert report["driven_status"] == "lap_complete" and report["driven_pace"] == 1.0
-    assert report["driven_tries"] == 1 and report["driven_slowed_m"] == 0.0
+    assert 1 <= report["driven_tries"] <= 1 + CORRIDOR_TRIES  # it finished its first lap; retries only to be faster
     # Within 5 % either way: the quasi-steady profile misses what the car does between steady states, and the
     # controller's lap, which cuts the line a little where the corridor allows, may come in just under it.
     assert 0.95 <= report["driven_lap_time_s"] / report["lap_time_s"] <= 1.05
@@ -279,7 +280,7 @@ def test_the_follower_drives_the_gazebo_cars_lagging_steering_round_its_limit() 
     lim = measure_limits(car)
     line = racing_line(load_track("reInvent2019_track"), lim)
     lap = drive_line("reInvent2019_track", line, lim, car)
-    assert lap.status == "lap_complete" and lap.pace >= 0.85 and lap.tries <= 4
+    assert lap.status == "lap_complete" and lap.pace >= 0.85 and lap.tries <= 4 + CORRIDOR_TRIES
     assert 0.95 < lap.lap_time / line.lap_time < 1.08
 
 
@@ -334,15 +335,76 @@ def test_the_follower_commands_the_lead_speed_within_the_cars_range(limits: CarL
     standing = line.speed
     cruise = int(np.argmax(standing[:-1]))
     speed = float(standing[cruise]) - 0.2
-    ahead = follower._s[cruise] + speed * SPEED_LEAD_S
-    target = float(np.interp(ahead % follower._s[-1], follower._s, standing))
+    along = follower._s[cruise] + 0.02
+    ahead = along + speed * SPEED_LEAD_S
+    target = float(np.sqrt(np.interp(ahead % follower._s[-1], follower._s, standing**2)))
     expected = lead_speed(speed, target, limits.speed_tau_s, SPEED_LEAD_S) / limits.speed_per_command
-    assert follower._speed_command(cruise, speed, standing) == pytest.approx(min(expected, limits.max_command_speed))
+    assert follower._speed_command(along, speed, standing) == pytest.approx(min(expected, limits.max_command_speed))
     # A lagging servo's command is clipped into the car's range: far above the profile, the lowest command; far
     # below it, the highest.
     lagging = LineFollower(line, replace(limits, speed_tau_s=0.173))
-    assert lagging._speed_command(cruise, float(standing[cruise]) + 5.0, standing) == SPEED_RANGE_MPS[0]
-    assert lagging._speed_command(cruise, 0.0, standing * 0 + 3.9) == limits.max_command_speed
+    assert lagging._speed_command(follower._s[cruise], float(standing[cruise]) + 5.0, standing) == SPEED_RANGE_MPS[0]
+    assert lagging._speed_command(follower._s[cruise], 0.0, standing * 0 + 3.9) == limits.max_command_speed
+
+
+def test_the_follower_reads_the_profiles_squared_speed_from_a_standing_start(limits: CarLimits) -> None:
+    """Between two points of constant acceleration v² is linear in distance: a third of the way from rest to
+    v1 the profile's speed is v1 / sqrt(3), not v1 / 3 (which left the default car waiting at the start)."""
+    from sim.follower import LineFollower
+
+    line = racing_line(load_track("reinvent_base"), limits)
+    follower = LineFollower(line, limits)
+    v1, s1 = float(line.speed[1]), float(line.ds[0])
+    assert line.speed[0] == 0.0 and v1 > 0.5
+    assert float(follower._paced(s1 / 3, line.speed)) == pytest.approx(v1 / np.sqrt(3.0), rel=1e-9)
+
+
+def test_the_follower_measures_the_cars_distance_along_the_line_not_the_nearest_points(limits: CarLimits) -> None:
+    """A point 3 cm ahead of line point 50 along the line's direction (and 10 cm to its side) is 3 cm further on;
+    beyond half the spacing to the next point the distance is that of the halfway point (it is nearer the next)."""
+    from sim.follower import LineFollower
+
+    line = racing_line(load_track("reinvent_base"), limits)
+    follower = LineFollower(line, limits)
+    p, tangent = line.points[50], line.points[51] - line.points[49]
+    tangent = tangent / np.linalg.norm(tangent)
+    normal = np.array([-tangent[1], tangent[0]])
+    assert follower._along(p + 0.03 * tangent + 0.1 * normal, 50) == pytest.approx(follower._s[50] + 0.03)
+    half = 0.5 * max(line.ds[50], line.ds[49])
+    assert follower._along(p + 0.5 * tangent, 50) == pytest.approx(follower._s[50] + half)
+    assert follower._along(p - 0.5 * tangent, 50) == pytest.approx(follower._s[50] - half)
+
+
+def test_a_lap_outside_the_lines_corridor_is_found_where_it_first_leaves(limits: CarLimits) -> None:
+    from sim.follower import _outside_corridor
+
+    line = racing_line(load_track("reinvent_base"), limits)
+    cor = line.corridor
+    inside = cor.center + (0.5 * (cor.low + cor.high))[:, None] * cor.normal
+    assert _outside_corridor(line, inside) is None
+    path = inside.copy()
+    path[70] = cor.center[70] + (cor.high[70] + 0.02) * cor.normal[70]
+    path[90] = cor.center[90] + (cor.low[90] - 0.02) * cor.normal[90]
+    assert np.array_equal(_outside_corridor(line, path), path[70])
+
+
+def test_a_lap_that_leaves_the_corridor_is_driven_again_and_the_fastest_is_kept(limits: CarLimits) -> None:
+    """On a corridor 2 cm wide about the line no car stays inside: the lap is tried CORRIDOR_TRIES more times, each
+    slower before where the last left it, and the lap reported is the fastest, at least as fast as the first."""
+    from sim.follower import LineFollower, _drive, drive_line, follower_env
+
+    line = racing_line(load_track("reinvent_base"), limits)
+    cor = line.corridor
+    line = replace(line, corridor=replace(cor, low=line.offsets - 0.01, high=line.offsets + 0.01))
+    env = follower_env("reinvent_base", limits)
+    try:
+        first, _ = _drive(env, LineFollower(line, limits))
+    finally:
+        env.close()
+    assert first.status == "lap_complete"
+    lap = drive_line("reinvent_base", line, limits)
+    assert lap.tries == 1 + CORRIDOR_TRIES and lap.status == "lap_complete"
+    assert lap.lap_time <= first.lap_time
 
 
 def test_the_followers_k_d_tree_finds_the_same_costs_as_all_pairs(limits: CarLimits) -> None:
