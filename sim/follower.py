@@ -207,7 +207,7 @@ class LineFollower:
         # np.linalg.norm's own sum for a real array, without its checks (a third of this method's time)
         return int(window[int(np.argmin(np.sqrt(np.add.reduce(step * step, axis=1))))])
 
-    def _along(self, point: np.ndarray, near: int) -> float:
+    def _along(self, point: tuple[float, float], near: int) -> float:
         """Distance along the line of ``point``'s projection, the line point ``near`` being the nearest: the
         point's distance, not the nearest point's, which is up to half a point spacing (5 cm) behind or ahead."""
         offset = (point[0] - self._points[near][0]) * self._tangent[near][0]
@@ -526,9 +526,10 @@ def _drive(env, follower: LineFollower, replay: TryRecord | None = None) -> tupl
 CORRIDOR_TRIES = 3
 """Laps tried again after a completed lap whose car left the line's corridor. The limit is the time of a line
 inside that corridor; a car that left it did not drive that line, most often because it came into a bend too fast
-to turn on it (the Gazebo car ran 0.5 m wide in AWS_track's hairpins, at the lowest speed command): slowing the
-stretch before that place may give a faster lap (measured on the 22 loops, 2026-11-28: Bowtie_track's Gazebo lap
-+3.6 % to +1.6 % over its limit, AWS_track's default one +2.2 % to +1.8 %; no lap slower, since the fastest is kept)."""
+to turn on it (with the speed read 0.12 s ahead, the Gazebo car came into an AWS_track hairpin over the profile at
+the lowest speed command and left the corridor by 2 cm): slowing the stretch before that place may give a faster
+lap (measured on the 22 loops, 2026-11-28: Bowtie_track's Gazebo lap +3.6 % to +1.6 % over its limit, AWS_track's
+default one +2.2 % to +1.8 %; no lap slower, since the fastest is kept)."""
 
 
 def _outside_corridor(line: RacingLine, centres: np.ndarray) -> np.ndarray | None:
