@@ -17,7 +17,7 @@ import pytest
 
 from common.car_calibration import CalibrationError, load_car
 from sim.car_limits import CarLimits, measure_limits
-from sim.follower import CORRIDOR_TRIES
+from sim.follower import CORRIDOR_TRIES, PACE_STEP
 from sim.physics import WHEELBASE_M
 from sim.raceline import _curvature, corridor, racing_line, speed_profile
 from sim.track import load_track
@@ -194,8 +194,10 @@ def test_racer_limit_drives_its_limit_within_5_percent(tmp_path: Path) -> None:
     report = json.loads(out.read_text())
     for key in ("lap_time_s", "driven_lap_time_s", "line_length_m", "car_limits", "flying_lap_time_s", "driven_pace"):
         assert key in report
-    assert report["driven_status"] == "lap_complete" and report["driven_pace"] == 1.0
-    assert 1 <= report["driven_tries"] <= 1 + CORRIDOR_TRIES  # it finished its first lap; retries only to be faster
+    # Every lap finished (tries only where a lap left the line's corridor, to be faster): the reported one was slowed
+    # by those retries at most.
+    assert report["driven_status"] == "lap_complete" and report["driven_pace"] >= PACE_STEP**CORRIDOR_TRIES - 1e-9
+    assert 1 <= report["driven_tries"] <= 1 + CORRIDOR_TRIES
     # Within 5 % either way: the quasi-steady profile misses what the car does between steady states, and the
     # controller's lap, which cuts the line a little where the corridor allows, may come in just under it.
     assert 0.95 <= report["driven_lap_time_s"] / report["lap_time_s"] <= 1.05
@@ -403,7 +405,7 @@ def test_a_lap_that_leaves_the_corridor_is_driven_again_and_the_fastest_is_kept(
         env.close()
     assert first.status == "lap_complete"
     lap = drive_line("reinvent_base", line, limits)
-    assert lap.tries == 1 + CORRIDOR_TRIES and lap.status == "lap_complete"
+    assert lap.tries >= 1 + CORRIDOR_TRIES and lap.status == "lap_complete"
     assert lap.lap_time <= first.lap_time
 
 
@@ -454,7 +456,7 @@ def test_the_followers_check_stops_losing_trials_early_and_still_picks_the_cheap
 def test_a_retry_replays_the_steps_its_slower_stretch_leaves_unchanged(limits: CarLimits) -> None:
     """A retry replays the earlier try's commands up to the first one that read a slowed point of the pace, then
     plans: the lap must be the one a retry planned from the start drives, and the replay must cover part of it."""
-    from sim.follower import PACE_STEP, LineFollower, _drive, _stretch_before, follower_env
+    from sim.follower import LineFollower, _drive, _stretch_before, follower_env
 
     line = racing_line(load_track("reinvent_base"), limits)
     env = follower_env("reinvent_base", limits)
