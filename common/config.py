@@ -11,6 +11,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from common.car_calibration import CarCalibration
+from common.defaults import DEFAULT_TRACK
 from common.errors import OptionError, UserError
 from common.hyperparams import GreedyAction, Hyperparameters
 from common.race import RaceConfig
@@ -134,7 +135,7 @@ class RandomizationConfig(_Strict):
 class EnvConfig(_Strict):
     """One simulated world: track, car, camera, reward, actions and randomization."""
 
-    track: str = "reinvent_base"
+    track: str = DEFAULT_TRACK
     """A bundled DeepRacer track name or a path to a DeepRacer .npy waypoint file."""
     reward_fn: str | None = None
     """Path to a DeepRacer reward-function .py file; None = follow the centre line (DeepRacer's example 1)."""

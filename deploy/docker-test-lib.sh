@@ -27,6 +27,7 @@ Environment:
                     download.pytorch.org
   RACER_TEST_BASE   a Debian bookworm image to build the stand-ins from (racer-base:bookworm); when missing,
                     tagged from a pulled debian:bookworm-slim, else made with debootstrap
+  DEBIAN_MIRROR     the Debian archive debootstrap reads (default: the first one this machine's apt sources name)
   RACER_COMPOSE     "docker compose" or "docker-compose" (default: whichever works)
   RACER_CLI         racer on the host (default: racer on PATH, ./.venv/bin/racer, else the image)
 EOF
@@ -159,6 +160,61 @@ image_exists() { docker image inspect "$1" >/dev/null 2>&1; }
 
 legacy_builder() { ! docker buildx version >/dev/null 2>&1; }
 
+# apt_debian_mirror [ROOT]: the Debian archive that the apt sources under ROOT (default /) name first: one-line entries
+# in etc/apt/sources.list and etc/apt/sources.list.d/*.list, deb822 stanzas in etc/apt/sources.list.d/*.sources, in
+# apt's order. An entry counts when its type is deb (not deb-src), it is enabled, its URI is http(s):// or file:/ and
+# its suite is a Debian release's own (a codename or stable, testing, ...): -security, -updates and -backports
+# suites are other archives, and a third party's (nodistro, cloud-sdk-bookworm) is not Debian. Prints the URI
+# without a trailing slash; fails, printing nothing, when no entry counts.
+apt_debian_mirror() {
+    local root=${1:-} file files=() uri
+    [[ -f $root/etc/apt/sources.list ]] && files+=("$root/etc/apt/sources.list")
+    for file in "$root"/etc/apt/sources.list.d/*; do
+        [[ -f $file && ($file == *.list || $file == *.sources) ]] && files+=("$file")
+    done
+    for file in "${files[@]}"; do
+        uri=$(awk -v deb822="$([[ $file == *.sources ]] && echo 1 || echo 0)" '
+            function debian(suite) {
+                return suite ~ /^(oldoldstable|oldstable|stable|testing|unstable|experimental|sid|buster|bullseye|bookworm|trixie|forky|duke)$/
+            }
+            function usable(uri) { return uri ~ /^(https?:\/\/|file:\/)/ }
+            function found(uri) { sub(/\/+$/, "", uri); print uri; done = 1; exit }
+            function stanza(   i, j, n, m, types, uris, suites, deb) {  # the deb822 stanza read so far
+                if (tolower(field["enabled"]) != "no") {
+                    n = split(field["types"], types, /[ \t]+/)
+                    for (i = 1; i <= n; i++) deb = deb || types[i] == "deb"
+                    n = split(field["uris"], uris, /[ \t]+/)
+                    m = split(field["suites"], suites, /[ \t]+/)
+                    for (i = 1; deb && i <= n; i++)
+                        for (j = 1; j <= m; j++)
+                            if (usable(uris[i]) && debian(suites[j])) found(uris[i])
+                }
+                delete field
+                name = ""
+            }
+            deb822 && /^[ \t]*#/ { next }
+            deb822 && /^[ \t]*$/ { stanza(); next }
+            deb822 && /^[ \t]/ { if (name != "") field[name] = field[name] " " $0; next }
+            deb822 {
+                name = tolower(substr($0, 1, index($0, ":") - 1))
+                field[name] = substr($0, index($0, ":") + 1)
+                gsub(/^[ \t]+|[ \t]+$/, "", field[name])
+                next
+            }
+            {  # one-line: deb [ options ] uri suite [component...]  (# starts a comment)
+                sub(/#.*/, "")
+                if ($1 != "deb") next
+                i = 2
+                if ($2 ~ /^\[/) { while (i < NF && $i !~ /\]$/) i++; i++ }
+                if (usable($i) && debian($(i + 1))) found($i)
+            }
+            END { if (deb822 && !done) stanza() }
+        ' "$file") || continue
+        [[ -n $uri ]] && { echo "$uri"; return 0; }
+    done
+    return 1
+}
+
 make_base_image() {
     if image_exists "$BASE"; then
         log "base image $BASE exists"
@@ -172,10 +228,13 @@ make_base_image() {
     fi
     command -v debootstrap >/dev/null || fail "$BASE is missing, no registry answers and debootstrap is not installed"
     [[ $(id -u) == 0 ]] || fail "$BASE is missing and making it with debootstrap needs root"
+    local mirror=${DEBIAN_MIRROR:-}
+    [[ -n $mirror ]] || mirror=$(apt_debian_mirror) ||
+        fail "no Debian archive in this machine's apt sources (/etc/apt/sources.list{,.d/}): set DEBIAN_MIRROR to one"
     local dir t0; dir=$(mktemp -d /var/tmp/racer-base.XXXXXX) t0=$(date +%s)
     CLEANUPS+=("rm -rf '$dir'")
-    log "making $BASE with debootstrap (Debian bookworm, minbase)"
-    timeout 900 debootstrap --variant=minbase bookworm "$dir" "${DEBIAN_MIRROR:-http://deb.debian.org/debian}" \
+    log "making $BASE with debootstrap (Debian bookworm, minbase, from $mirror)"
+    timeout 900 debootstrap --variant=minbase bookworm "$dir" "$mirror" \
         >"$dir.log" 2>&1 || { tail -20 "$dir.log" >&2; fail "debootstrap failed (log above)"; }
     rm -f "$dir.log"
     rm -rf "$dir"/var/cache/apt/*.bin "$dir"/var/cache/apt/archives/*.deb "$dir"/var/lib/apt/lists/*

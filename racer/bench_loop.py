@@ -12,6 +12,7 @@ import redis
 from rich.console import Console
 
 from common.bus import Bus
+from common.defaults import DEFAULT_TRACK
 from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
@@ -20,7 +21,7 @@ from rollout_worker.worker import RolloutWorker, WorkerOptions
 from trainer.process import Trainer, TrainerOptions
 
 
-def bench_transport(track: str = "reinvent_base", segment_steps: int = 32, segments: int = 30) -> dict:
+def bench_transport(track: str = DEFAULT_TRACK, segment_steps: int = 32, segments: int = 30) -> dict:
     """Time to simulate a segment (env + policy) against the time to move it through Redis (encode, XADD,
     XREAD, decode), in one process on one core, with a real Redis on a unix socket."""
     with EmbeddedRedis() as server, tempfile.TemporaryDirectory() as store:
@@ -96,7 +97,7 @@ class _Monitor(threading.Thread):
         return out
 
 
-def bench_loop(workers: int, duration_s: float, track: str = "reinvent_base", hyperparams: str | None = None) -> dict:
+def bench_loop(workers: int, duration_s: float, track: str = DEFAULT_TRACK, hyperparams: str | None = None) -> dict:
     """Run ``racer train`` with N workers for a while; experience consumed by the trainer, propagation, memory."""
     with EmbeddedRedis() as server, tempfile.TemporaryDirectory() as store:
         run_id = f"bench-{workers}w"

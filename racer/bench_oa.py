@@ -1,10 +1,10 @@
 """``racer bench oa``: learn DeepRacer's object avoidance (or head-to-bot) from scratch and time it.
 
 For each seed, one after the other: ``racer train`` (embedded Redis, 2 workers, the evaluator beside the trainer)
-for a fixed budget on reinvent_base with the STEREO_CAMERAS sensor, the shipped ``object_avoidance`` reward example
-and a 10-action space for driving round objects (:data:`OA_ACTIONS`: five steering angles from -30° to 30° at
-1 and 2 m/s), racer's stability knobs on as in ``racer bench race``, without its pace rule
-(:data:`racer.bench_race.GUARD_HYPERPARAMS`).
+for a fixed budget on racer_loop (racer's default track) with the STEREO_CAMERAS sensor, the shipped
+``object_avoidance`` reward example and a 10-action space for driving round objects (:data:`OA_ACTIONS`: five
+steering angles from -30° to 30° at 1 and 2 m/s), racer's stability knobs on as in ``racer bench race``,
+without its pace rule (:data:`racer.bench_race.GUARD_HYPERPARAMS`).
 
 The race (:func:`oa_race`): OBJECT_AVOIDANCE with 3 boxes placed at random every episode
 (``randomize_obstacle_locations``), or, with ``race_type`` HEAD_TO_BOT, 2 bot cars at 0.5 m/s starting at random
@@ -34,6 +34,7 @@ from typing import Any
 
 from rich.console import Console
 
+from common.defaults import DEFAULT_TRACK
 from common.race import HeadToBotConfig, ObjectAvoidanceConfig, RaceConfig, RaceType
 from common.sensors import STEREO_CAMERAS
 from model_store import RunStore
@@ -67,7 +68,7 @@ class BenchOASettings:
     minutes: float = 60.0
     race_type: str = RaceType.OBJECT_AVOIDANCE.value
     """OBJECT_AVOIDANCE (3 random boxes) or HEAD_TO_BOT (2 bots at 0.5 m/s)."""
-    track: str = "reinvent_base"
+    track: str = DEFAULT_TRACK
     workers: int = 2
     eval_trials: int = MIN_TRIALS
     """Evaluation start points (the track's direction only), each with its own object placement."""

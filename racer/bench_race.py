@@ -51,6 +51,7 @@ from rich.console import Console
 
 from common.car_calibration import load_car
 from common.config import RandomizationConfig, RunConfig
+from common.defaults import DEFAULT_TRACK
 from common.errors import OptionError
 from common.jsonfile import read_json_object
 from model_store import LocalStore, RunStore
@@ -105,7 +106,7 @@ class BenchRaceSettings:
 
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
     minutes: float = 30.0
-    track: str = "reinvent_base"
+    track: str = DEFAULT_TRACK
     car: str = "default"
     workers: int = 2
     eval_starts: int = 10

@@ -14,6 +14,7 @@ import redis
 from rich.console import Console
 
 from common.bus import Bus
+from common.defaults import STRAIGHT_TRACK
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
 from racer.runconfig import build_run
@@ -64,7 +65,7 @@ def growth_in_last_third(samples: list[dict], value) -> float | None:
 
 
 def bench_soak(
-    duration_s: float, workers: int = 2, track: str = "Straight_track", stream_maxlen: int = 16, every_s: float = 2.0
+    duration_s: float, workers: int = 2, track: str = STRAIGHT_TRACK, stream_maxlen: int = 16, every_s: float = 2.0
 ) -> dict:
     """Run ``racer train`` for ``duration_s`` and return the samples and a summary of what grew."""
     with EmbeddedRedis() as server, tempfile.TemporaryDirectory() as store:

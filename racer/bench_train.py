@@ -29,6 +29,7 @@ import numpy as np
 from rich.console import Console
 
 from common.config import EnvConfig, RunConfig
+from common.defaults import DEFAULT_TRACK
 from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
@@ -43,7 +44,7 @@ class BenchTrainSettings:
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
     time_limit_s: float = 600.0
     """Give up on a seed after this long (per system)."""
-    track: str = "reinvent_base"
+    track: str = DEFAULT_TRACK
     hyperparams: str | None = None
     """A DeepRacer hyperparameters.json for both systems; None = racer's defaults."""
     workers: int = 2

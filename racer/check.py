@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from common.defaults import DEFAULT_TRACK
 from common.race import RaceConfig
 from racer.drfc import DrfcImport, import_drfc
 
@@ -14,7 +15,7 @@ from racer.drfc import DrfcImport, import_drfc
 class UserFiles:
     """The user's inputs to a run after ``--from-drfc`` is merged in (explicit options win)."""
 
-    track: str = "reinvent_base"
+    track: str = DEFAULT_TRACK
     reward_fn: str | None = None
     action_space: str | None = None
     hyperparams: str | None = None
@@ -46,7 +47,7 @@ def merge_inputs(
         return None if chosen is None else str(chosen)
 
     return UserFiles(
-        track=pick(track, drfc and drfc.track) or "reinvent_base",
+        track=pick(track, drfc and drfc.track) or DEFAULT_TRACK,
         reward_fn=pick(reward_fn, drfc and drfc.reward_fn),
         action_space=pick(action_space, drfc and drfc.action_space),
         hyperparams=pick(hyperparams, drfc and drfc.hyperparams),

@@ -25,7 +25,6 @@ from pydantic import ValidationError
 
 from common.errors import UserError, first_validation_error
 from common.race import RaceConfig, RaceType, race_config_from_drfc
-from sim.track import bundled_track_names
 
 CUSTOM_FILES = ("reward_function.py", "model_metadata.json", "hyperparameters.json")
 _LINE = re.compile(r"^\s*(?:export\s+)?([A-Za-z_][A-Za-z0-9_]*)\s*=\s*(.*?)\s*$")
@@ -169,12 +168,13 @@ def _number(where: _Where, kind: type, low: float, high: float) -> Any:
 
 
 def _world(out: DrfcImport, value: str, where: _Where) -> str:
-    names = bundled_track_names()
-    if value not in names:
+    from sim.track import TrackError, track_source
+
+    try:
+        track_source(value)
+    except TrackError as exc:
         # Raised only if no --track is given: the user may pass the track's .npy instead.
-        out.track_error = where.error(
-            f"racer does not ship this track; give --track with its .npy file or one of {', '.join(names)}"
-        )
+        out.track_error = where.error(f"{exc}; or give --track with its .npy file")
         return ""
     out.track = value
     return f"--track {value}"

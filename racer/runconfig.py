@@ -17,6 +17,7 @@ from common.config import (
     RunConfig,
     network_from_metadata,
 )
+from common.defaults import DEFAULT_TRACK
 from common.errors import OptionError, UserError
 from common.hyperparams import Hyperparameters, HyperparametersError, load_hyperparameters
 from common.jsonfile import load_json_model
@@ -39,7 +40,7 @@ def parse_duration(text: str) -> float:
 
 def build_run(
     run_id: str,
-    track: str = "reinvent_base",
+    track: str = DEFAULT_TRACK,
     reward_fn: str | None = None,
     action_space: str | None = None,
     hyperparams: str | None = None,
@@ -162,7 +163,7 @@ def check_pretrained(runs: RunStore, run: RunConfig, files: dict[str, bytes], re
 class NewRun:
     """What defines a new run: ``racer train``'s (or ``racer trainer``'s) options, merged with a DRfC folder."""
 
-    track: str = "reinvent_base"
+    track: str = DEFAULT_TRACK
     reward_fn: str | None = None
     action_space: str | None = None
     hyperparams: str | None = None

@@ -1,4 +1,4 @@
-"""The gymnasium adapter: ``gymnasium.make("sim:Racer-v0", track="reinvent_base", ...)``.
+"""The gymnasium adapter: ``gymnasium.make("sim:Racer-v0", track="racer_loop", ...)``.
 
 Thin by design: the car (``physics``), the world and camera (``world``, ``camera``, ``texture``),
 the task (``task``) and the user's reward function (``reward``) do the work; this module wires
@@ -25,6 +25,7 @@ from common.action_space import (
     load_action_space,
 )
 from common.config import FRAME_HEIGHT, FRAME_WIDTH, EnvConfig
+from common.defaults import DEFAULT_TRACK
 from common.errors import UserError
 from common.sensors import CAMERA_KEY, LIDAR_KEY, ObsSpec, lidar_from_ranges, observation_spec
 from common.simtrace import OBSTACLE_COLUMN
@@ -391,6 +392,6 @@ def _gentlest_action(actions: ActionSpace) -> Any:
     return np.array([steer, rng.speed.low], np.float32)
 
 
-def make_env(track: str | Path = "reinvent_base", **kwargs: Any) -> RacerEnv:
+def make_env(track: str | Path = DEFAULT_TRACK, **kwargs: Any) -> RacerEnv:
     """Build an env directly (same as ``gymnasium.make("sim:Racer-v0", ...)`` without wrappers)."""
     return RacerEnv(track=str(track), **kwargs)

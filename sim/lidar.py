@@ -54,6 +54,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from common.defaults import DEFAULT_TRACK
 from common.sensors import LIDAR, LIDAR_MAX_RANGE_M, LIDAR_MIN_RANGE_M, LIDAR_SAMPLES, SECTOR_LIDAR, lidar_from_ranges
 from sim.physics import Pose
 from sim.world import CONTROL_HZ, OBJECT_GEOM_GROUP
@@ -228,7 +229,7 @@ def _bench(calls: int = 1000, repeats: int = 5) -> None:
     from sim.world import build_model, set_objects
 
     cv2.setNumThreads(1)
-    track = load_track("reinvent_base")
+    track = load_track(DEFAULT_TRACK)
     frame = TextureFrame.for_track(track)
     texture = colorize(draw_layers(track, frame), DEEPRACER_PALETTE)
     model = build_model(frame, object_slots=6)

@@ -268,14 +268,14 @@ class _WaypointLine:
     """The reward function's ``waypoints`` and ``closest_waypoints`` for one direction, computed as the simapp does.
 
     simapp (``markov/track_geom/track_data.py``, ``TrackLine`` and ``find_prev_next`` in ``track_geom/utils.py``):
-    the waypoints are the file's centre-line rows in the direction of travel, repeated rows and the closing row
-    of a loop included; ``closest_waypoints`` is ``[i, i + 1]`` for the row pair whose arc-length interval holds
-    the car's projection, found with ``bisect_right``, so a car projecting exactly onto waypoint i gets
+    the waypoints are the sanitized route's centre-line rows (``Track.waypoints``) in the direction of travel, a
+    loop's closing row included; ``closest_waypoints`` is ``[i, i + 1]`` for the row pair whose arc-length
+    interval holds the car's projection, found with ``bisect_right``, so a car projecting exactly onto waypoint i gets
     ``[i, i + 1]``, on a loop's last segment ``[n - 2, n - 1]``, and ``[n - 1, 0]`` only at the very end.
     """
 
     def __init__(self, track: Track, reverse: bool) -> None:
-        rows = track.file_rows[:, :2]
+        rows = track.waypoints[:, :2]
         self.waypoints = [(float(x), float(y)) for x, y in rows]
         seg = np.linalg.norm(np.diff(rows, axis=0), axis=1)
         # The same sums, in the same order, as Track.cumulative (a repeated row adds 0.0), so a projection that
@@ -301,13 +301,24 @@ def _foot(track: Track, proj) -> tuple[float, float]:
     return float(a[0] + t * (b[0] - a[0])), float(a[1] + t * (b[1] - a[1]))
 
 
+_BORDER_WINDOW = 6
+
+
 def _nearest_on_border(
     segments: list[Segment], point: tuple[float, float], hint: int, closed: bool
 ) -> tuple[float, float]:
     """The point of a border polyline nearest ``point`` (shapely's ``interpolate(project(point))`` in the simapp).
 
-    Searched within six segments either side of the centre line's segment (border row i faces centre row i)."""
-    j, t, _, _ = nearest_segment(segments, point[0], point[1], hint, 6, closed)
+    Searched within six segments either side of the centre line's segment (border row i faces centre row i on most
+    routes), and over the whole border when the nearest lies at the window's edge: on routes whose borders are
+    sampled apart from the centre line (Tokyo_Training_track) it lies further on, and shapely searches it all."""
+    n, window = len(segments), _BORDER_WINDOW
+    j, t, _, _ = nearest_segment(segments, point[0], point[1], hint, window, closed)
+    if 2 * window + 1 < n:
+        lo, hi = hint - window, hint + window
+        at_edge = (j - lo) % n == 0 or (hi - j) % n == 0 if closed else j in (max(lo, 0), min(hi, n - 1))
+        if at_edge:
+            j, t, _, _ = nearest_segment(segments, point[0], point[1], hint, n, closed)
     sx, sy, vx, vy, _ = segments[j]
     return sx + t * vx, sy + t * vy
 

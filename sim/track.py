@@ -2,8 +2,18 @@
 
 A track file is a DeepRacer ``.npy`` waypoint array of shape (N, 6):
 ``center_x, center_y, inner_x, inner_y, outer_x, outer_y`` in metres, where "inner" is the
-border inside the loop. A closed loop repeats its first row as its last; an open track
+border inside the loop. A loop repeats its first row exactly as its last; an open track
 (Straight_track) does not.
+
+A route is read as DeepRacer's simapp reads it (``bundle/markov/track_geom/track_data.py``,
+``TrackData.__init__`` and ``_sanitize_waypoints``, at :data:`sim.routes.SIMAPP_COMMIT`): a bad shape or a
+non-finite value is an error naming the row and column; it is a loop when its first and last rows are equal in
+every column; zero-length centre-line steps (under 1e-9 m) are dropped, a loop's closing row kept. The result is
+``Track.waypoints``, which is also the reward function's ``waypoints``.
+
+A track is named by a path to an ``.npy`` file, one of racer's own tracks (:mod:`sim.track_gen`, generated, always
+there), or a DeepRacer track name found in the track folder (:func:`sim.routes.tracks_dir`, filled by
+``racer tracks pull``).
 """
 
 from __future__ import annotations
@@ -12,15 +22,20 @@ import logging
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from common.errors import UserError
+from sim.routes import cached_route_names, deepracer_route_names, pull_command, route_checksums, tracks_dir
+from sim.track_gen import DEFAULT_TRACK, is_racer_track, racer_track_array, racer_track_names
+
+__all__ = ["DEFAULT_TRACK", "Track", "TrackError", "known_track_names", "load_track", "track_source"]
 
 MIN_WAYPOINTS = 5
-_CLOSE_TOL_M = 1e-3
+SANITIZE_EPS_M = 1e-9
+"""The simapp's ``_sanitize_waypoints`` eps: a centre-line step this short or shorter is dropped."""
+_NEAR_CLOSED_M = 0.01
 log = logging.getLogger("racer.track")
 
 
@@ -28,35 +43,81 @@ class TrackError(UserError, ValueError):
     """A track file that cannot be used; the message names the file and what is wrong."""
 
 
-def bundled_track_names() -> list[str]:
-    """Names of the DeepRacer tracks shipped with the package, sorted."""
-    folder = resources.files("sim") / "tracks"
-    return sorted(p.name[:-4] for p in folder.iterdir() if p.name.endswith(".npy"))
+def known_track_names() -> list[str]:
+    """Every track name racer can resolve: its own, the cached DeepRacer tracks and the ones that can be pulled."""
+    return sorted(set(racer_track_names()) | set(cached_route_names()) | set(deepracer_route_names()))
 
 
-def resolve_track_path(track: str | Path) -> Path:
-    """Map a bundled track name or a path to an ``.npy`` file to a path; raise TrackError if neither."""
+def track_source(track: str | Path) -> Path | str:
+    """Where a track name leads: a racer track's name (a str), or the path of its ``.npy`` file.
+
+    Raises TrackError for a missing file, a DeepRacer track not yet pulled (giving the pull command) or an
+    unknown name."""
+    text = str(track)
+    if isinstance(track, str) and is_racer_track(text):
+        return text
     path = Path(track)
     if path.suffix == ".npy" or path.exists():
         if not path.is_file():
-            raise TrackError(f"track file {str(track)!r} does not exist")
+            raise TrackError(f"track file {text!r} does not exist")
         return path
-    bundled = resources.files("sim") / "tracks" / f"{track}.npy"
-    if not bundled.is_file():
-        names = ", ".join(bundled_track_names())
-        raise TrackError(f"unknown track {str(track)!r}: give a .npy path or one of {names}")
-    return Path(str(bundled))
+    cached = tracks_dir() / f"{text}.npy"
+    if cached.is_file():
+        return cached
+    if text in route_checksums():
+        raise TrackError(
+            f"DeepRacer track {text!r} is not in the track folder {str(tracks_dir())!r}: get it with "
+            f"`{pull_command(text)}` (or set RACER_TRACKS_DIR to a folder of DeepRacer .npy routes)"
+        )
+    raise TrackError(
+        f"unknown track {text!r}: give a .npy path, one of racer's tracks ({', '.join(racer_track_names())}) or a "
+        f"DeepRacer track name (`racer tracks ls` lists them)"
+    )
 
 
 def load_track(track: str | Path) -> Track:
-    """Load and validate a bundled track by name or a DeepRacer ``.npy`` file by path."""
-    path = resolve_track_path(track)
+    """Load and validate a track: racer's by name, a DeepRacer track by name from the track folder, or a path."""
+    source = track_source(track)
+    if isinstance(source, str):
+        return Track.from_array(racer_track_array(source), name=source, source=f"racer:{source}")
     try:
-        raw = np.load(path, allow_pickle=False)
+        raw = np.load(source, allow_pickle=False)
     except Exception as exc:  # numpy raises several types for unreadable files
-        raise TrackError(f"track file {str(path)!r} is not a readable .npy array: {exc}") from None
-    name = path.stem
-    return Track.from_array(raw, name=name, source=str(path))
+        raise TrackError(f"track file {str(source)!r} is not a readable .npy array: {exc}") from None
+    return Track.from_array(raw, name=source.stem, source=str(source))
+
+
+def sanitize_waypoints(raw: np.ndarray, source: str) -> np.ndarray:
+    """The simapp's ``TrackData._sanitize_waypoints``: the route as DeepRacer uses it, or a TrackError.
+
+    Follows bundle/markov/track_geom/track_data.py at :data:`sim.routes.SIMAPP_COMMIT` step by step: the shape
+    (2-D, at least 2 rows and 6 columns), finiteness of the first six columns (the first bad row and column named),
+    a loop when the first and last rows are equal in every column, zero-length centre-line steps dropped (a loop's
+    closing row always kept). Columns past the sixth are kept, as the simapp keeps them (only its loop test reads
+    them)."""
+    if raw.dtype.kind not in "fiu":
+        raise TrackError(f"track file {source!r}: expected numbers, got dtype {raw.dtype}")
+    if raw.ndim != 2 or raw.shape[0] < 2 or raw.shape[1] < 6:
+        raise TrackError(f"track file {source!r}: expected shape (N, 6), got {raw.shape}")
+    waypoints = raw.astype(np.float64)
+    core = waypoints[:, :6]
+    if not np.isfinite(core).all():
+        row, col = (int(v) for v in np.argwhere(~np.isfinite(core))[0])
+        raise TrackError(f"track file {source!r}: non-finite value {core[row, col]} at row {row}, column {col}")
+    is_loop = bool(np.all(waypoints[0, :] == waypoints[-1, :]))
+    center = waypoints[:, 0:2]
+    if is_loop and len(waypoints) > 2:
+        core_center = center[:-1]
+        keep = np.ones(len(core_center), dtype=bool)
+        keep[1:] = np.linalg.norm(np.diff(core_center, axis=0), axis=1) > SANITIZE_EPS_M
+        sanitized = np.vstack((waypoints[:-1][keep], waypoints[-1:]))
+    else:
+        keep = np.ones(len(center), dtype=bool)
+        keep[1:] = np.linalg.norm(np.diff(center, axis=0), axis=1) > SANITIZE_EPS_M
+        sanitized = waypoints[keep]
+    if len(sanitized) < 2:
+        raise TrackError(f"track file {source!r}: the route is degenerate once zero-length steps are dropped")
+    return sanitized
 
 
 def _segments_cross(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> np.ndarray:
@@ -98,21 +159,23 @@ def _signed_area(poly: np.ndarray) -> float:
     return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
-def _validate(raw: np.ndarray, source: str) -> np.ndarray:
-    """Check shape, values and border geometry; return a float64 copy without repeated rows."""
-    if raw.dtype.kind not in "fiu":
-        raise TrackError(f"track file {source!r}: expected numbers, got dtype {raw.dtype}")
-    if raw.ndim != 2 or raw.shape[1] != 6:
-        raise TrackError(f"track file {source!r}: expected shape (N, 6), got {raw.shape}")
-    arr = raw.astype(np.float64)
-    if not np.all(np.isfinite(arr)):
-        bad = int(np.argwhere(~np.isfinite(arr))[0][0])
-        raise TrackError(f"track file {source!r}: non-finite value (NaN or inf) in row {bad}")
-    keep = np.ones(len(arr), dtype=bool)
-    keep[1:] = np.linalg.norm(np.diff(arr[:, :2], axis=0), axis=1) > 1e-9
-    arr = arr[keep]
+def _validate(raw: np.ndarray, source: str) -> tuple[np.ndarray, bool]:
+    """Sanitize as the simapp does, then check what racer needs on top: enough waypoints, a usable width; warn
+    about crossing borders and a loop that is closed only nearly (the simapp reads that as an open line).
+    Returns the six route columns and whether the route is a loop (the simapp's test, on every column)."""
+    sanitized = sanitize_waypoints(raw, source)
+    closed = bool(np.all(sanitized[0] == sanitized[-1]))
+    arr = np.ascontiguousarray(sanitized[:, :6])
     if len(arr) < MIN_WAYPOINTS:
         raise TrackError(f"track file {source!r}: {len(arr)} distinct waypoints, need at least {MIN_WAYPOINTS}")
+    gap = float(np.linalg.norm(arr[0, :2] - arr[-1, :2]))
+    if not closed and gap < _NEAR_CLOSED_M:
+        log.warning(
+            "track file %r: the first and last rows are %.2g m apart but not equal; DeepRacer reads it as an open "
+            "line with no lap, and so does racer (repeat the first row exactly as the last to make it a loop)",
+            source,
+            gap,
+        )
     width = np.linalg.norm(arr[:, 2:4] - arr[:, 4:6], axis=1)
     if np.any(width < 0.05):
         bad = int(np.argmin(width))
@@ -141,7 +204,7 @@ def _validate(raw: np.ndarray, source: str) -> np.ndarray:
         log.warning(
             "track file %r: the inner and outer borders cross (%d crossings); loaded as DeepRacer does", source, n
         )  # noqa: E501
-    return arr
+    return arr, closed
 
 
 @dataclass(frozen=True)
@@ -164,31 +227,20 @@ class Track:
 
     name: str
     waypoints: np.ndarray = field(repr=False)
-    """(N, 6) float64 as in the file: center, inner, outer."""
+    """(N, 6) float64, the route as DeepRacer uses it (:func:`sanitize_waypoints`): center, inner, outer; a loop's
+    last row equals its first. The reward function's ``waypoints`` are its centre column."""
     closed: bool
     source: str = ""
-    rows: np.ndarray | None = field(default=None, repr=False)
-    """(M, 6) float64: the file's rows exactly, repeated rows included (the simapp keeps them, so the reward
-    function's ``waypoints`` and ``closest_waypoints`` count them); None = the same as ``waypoints``."""
 
     @classmethod
     def from_array(cls, raw: np.ndarray, name: str = "track", source: str = "<array>") -> Track:
         """Validate a DeepRacer waypoint array and build a Track from it."""
-        arr = _validate(np.asarray(raw), source)
-        closed = bool(np.linalg.norm(arr[0, :2] - arr[-1, :2]) < _CLOSE_TOL_M)
-        if closed:
-            arr[-1] = arr[0]
-        rows = np.asarray(raw, dtype=np.float64).copy()
-        return cls(name=name, waypoints=arr, closed=closed, source=source, rows=rows)
+        arr, closed = _validate(np.asarray(raw), source)
+        return cls(name=name, waypoints=arr, closed=closed, source=source)
 
     def reversed(self) -> Track:
         """The same track driven the other way round (inner stays the border inside the loop)."""
-        return Track(self.name, self.waypoints[::-1].copy(), self.closed, self.source, self.file_rows[::-1].copy())
-
-    @property
-    def file_rows(self) -> np.ndarray:
-        """(M, 6): the rows as the file has them (in this direction), repeated rows included."""
-        return self.waypoints if self.rows is None else self.rows
+        return Track(self.name, self.waypoints[::-1].copy(), self.closed, self.source)
 
     @property
     def center(self) -> np.ndarray:
@@ -278,7 +330,7 @@ class Track:
     def _project(self, pts: np.ndarray, segments: np.ndarray) -> Projection:
         start, vec, length = (a[segments] for a in self._seg)
         rel = pts[:, None, :] - start[None, :, :]
-        t = np.clip(np.einsum("kmi,mi->km", rel, vec) / (length**2), 0.0, 1.0)
+        t = np.clip(np.einsum("kmi,mi->km", rel, vec) / np.maximum(length**2, 1e-300), 0.0, 1.0)
         foot = start[None] + t[..., None] * vec[None]
         dist2 = np.sum((pts[:, None, :] - foot) ** 2, axis=2)
         best = np.argmin(dist2, axis=1)
@@ -302,7 +354,7 @@ class Track:
         s = float(np.clip(s, 0.0, self.length))
         start, vec, length = self._seg
         seg = int(np.clip(np.searchsorted(self.cumulative, s, side="right") - 1, 0, len(length) - 1))
-        t = (s - self.cumulative[seg]) / length[seg]
+        t = (s - self.cumulative[seg]) / length[seg] if length[seg] > 0 else 0.0
         return start[seg] + t * vec[seg], float(np.arctan2(vec[seg, 1], vec[seg, 0]))
 
     @cached_property

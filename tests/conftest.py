@@ -1,5 +1,7 @@
 """Shared fixtures: real servers started by the tests (never the machine's own Redis on 6379)."""
 
+import os
+import tempfile
 import uuid
 
 import boto3
@@ -8,6 +10,14 @@ import redis
 from moto.server import ThreadedMotoServer
 
 from racer.embedded_redis import EmbeddedRedis, free_port
+from tests.shared_data import HAVE_DEEPRACER_TRACKS, SHARED_TRACKS
+
+# DeepRacer's tracks by name, for the tests and every process they start: the shared folder's routes read in place
+# when it is there, an empty folder otherwise (never the user's own ~/.cache/racer/tracks). Set at import, before
+# collection, because some tests parametrize over track names.
+os.environ["RACER_TRACKS_DIR"] = (
+    str(SHARED_TRACKS) if HAVE_DEEPRACER_TRACKS else tempfile.mkdtemp(prefix="racer-tracks-")
+)
 
 S3_BUCKET = "racer-it"
 

@@ -7,23 +7,44 @@ import sys
 import cv2
 from typer.testing import CliRunner
 
+from common.defaults import DEFAULT_TRACK
 from racer.cli import app
-from sim.track import bundled_track_names
+from sim.track_gen import racer_track_names
 
 runner = CliRunner()
 
 
-def test_tracks_ls_lists_every_bundled_track():
+def test_tracks_ls_lists_racers_tracks_the_cached_ones_and_what_can_be_pulled(tmp_path, monkeypatch):
+    monkeypatch.setenv("RACER_TRACKS_DIR", str(tmp_path))
+    monkeypatch.setenv("COLUMNS", "200")
+    (tmp_path / "Oval_track.npy").write_bytes(_ring_npy())  # a track in the folder, by the name of a DeepRacer one
     result = runner.invoke(app, ["tracks", "ls"])
-    assert result.exit_code == 0
-    for name in bundled_track_names():
+    assert result.exit_code == 0, result.output
+    for name in racer_track_names():
         assert name in result.output
     assert "CW" in result.output and "open" in result.output
+    cached = [line for line in result.output.splitlines() if "Oval_track" in line and "DeepRacer" in line]
+    assert cached and "12.57" in cached[0]  # its own length (a 2 m ring), read from the folder
+    assert "126 DeepRacer tracks can be pulled" in result.output and "reinvent_base" in result.output
+
+
+def _ring_npy() -> bytes:
+    import io
+
+    import numpy as np
+
+    theta = np.linspace(0, 2 * np.pi, 201)
+    c, s = np.cos(theta), np.sin(theta)
+    arr = np.column_stack([2 * c, 2 * s, 1.6 * c, 1.6 * s, 2.4 * c, 2.4 * s])
+    arr[-1] = arr[0]
+    buf = io.BytesIO()
+    np.save(buf, arr)
+    return buf.getvalue()
 
 
 def test_tracks_show_writes_a_picture_of_track_and_camera(tmp_path):
     png = tmp_path / "track.png"
-    result = runner.invoke(app, ["tracks", "show", "reinvent_base", "--png", str(png)])
+    result = runner.invoke(app, ["tracks", "show", DEFAULT_TRACK, "--png", str(png)])
     assert result.exit_code == 0, result.output
     img = cv2.imread(str(png))
     assert img is not None and img.shape[1] > img.shape[0]

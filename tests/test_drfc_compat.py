@@ -11,15 +11,17 @@ from __future__ import annotations
 import bisect
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from shapely.geometry import LinearRing, Point
+from shapely.geometry import LinearRing, LineString, Point
 
 from common.config import EnvConfig, PolicyConfig, RunConfig
+from common.defaults import DEFAULT_TRACK, STRAIGHT_TRACK
 from model_store import LocalStore, RunStore
 from racer.drfc import DrfcError, import_drfc
 from racer.runconfig import PretrainedError, build_run, check_pretrained
@@ -28,17 +30,36 @@ from sim.physics import FRONT_POINT_M, Pose
 from sim.reward import RewardFunctionError
 from sim.task import RacingTask
 from sim.track import load_track
+from tests.shared_data import SHARED_TRACKS, deepracer_track_names, needs_deepracer_tracks
 
 PATTERNS = Path(__file__).parent / "data" / "reward_patterns"
-TRACKS = ("reinvent_base", "Spain_track", "2022_summit_speedway")  # Spain_track: clockwise, negative coordinates
+# racer's loop both ways round, and a DeepRacer track with negative coordinates (Spain_track, clockwise).
+TRACKS = ("racer_loop", "racer_loop_cw", pytest.param("Spain_track", marks=needs_deepracer_tracks))
 
 
 # --- the simapp's computation, with shapely ---------------------------------------------------------------------
 
 
-def simapp_params(rows: np.ndarray, x: float, y: float) -> dict:
-    """closest_waypoints, track_width, distance_from_center and is_left_of_center as the simapp computes them."""
-    center, inner, outer = LinearRing(rows[:, 0:2]), LinearRing(rows[:, 2:4]), LinearRing(rows[:, 4:6])
+def simapp_sanitize(waypoints: np.ndarray) -> np.ndarray:
+    """The simapp's ``TrackData._sanitize_waypoints`` (track_data.py at 01f5f015), written out again here as the
+    reference: a loop (first row == last row, every column) keeps its closing row; zero-length centre-line steps
+    (<= 1e-9 m) are dropped."""
+    is_loop = bool(np.all(waypoints[0, :] == waypoints[-1, :]))
+    body = waypoints[:-1] if is_loop and len(waypoints) > 2 else waypoints
+    keep = np.ones(len(body), dtype=bool)
+    keep[1:] = np.linalg.norm(np.diff(body[:, 0:2], axis=0), axis=1) > 1e-9
+    return np.vstack((body[keep], waypoints[-1:])) if body is not waypoints else body[keep]
+
+
+def simapp_params(rows: np.ndarray, x: float, y: float, reverse: bool = False) -> dict:
+    """closest_waypoints, track_width, distance_from_center and is_left_of_center as the simapp computes them, for
+    ``rows`` already in the direction of travel (``reverse`` says whether that is the file's order reversed)."""
+    loop = bool(np.all(rows[0] == rows[-1]))
+    line = LinearRing if loop else LineString
+    center, inner, outer = line(rows[:, 0:2]), line(rows[:, 2:4]), line(rows[:, 4:6])
+    # TrackData.is_ccw: the forward centre line's orientation (True for an open line), flipped when reversed; for a
+    # loop, the reversed ring's own orientation is the same thing.
+    ccw = center.is_ccw if loop else not reverse
     ndists = [center.project(Point(p), normalized=True) for p in center.coords[:-1]] + [1.0]
     point = Point(x, y)
     ndist = center.project(point, normalized=True)
@@ -52,7 +73,7 @@ def simapp_params(rows: np.ndarray, x: float, y: float) -> dict:
         "closest_waypoints": [prev, nxt],
         "track_width": near_in.distance(near_out),
         "distance_from_center": near_ctr.distance(point),
-        "is_left_of_center": (point.distance(near_in) < point.distance(near_out)) ^ (not center.is_ccw),
+        "is_left_of_center": (point.distance(near_in) < point.distance(near_out)) ^ (not ccw),
     }
 
 
@@ -74,10 +95,10 @@ def wedge_point(rows: np.ndarray, i: int, offset: float = 0.05) -> tuple[float, 
     return float(q[0]), float(q[1])
 
 
-@pytest.mark.parametrize("name", ["reinvent_base", "Spain_track"])
+@pytest.mark.parametrize("name", [DEFAULT_TRACK, pytest.param("Spain_track", marks=needs_deepracer_tracks)])
 def test_closest_waypoints_at_a_vertex_are_i_and_i_plus_1(name: str) -> None:
     track = load_track(name)
-    rows = track.file_rows
+    rows = track.waypoints
     task = RacingTask(track)
     checked = 0
     for i in range(5, len(rows) - 5, 7):
@@ -96,21 +117,21 @@ def test_closest_waypoints_at_a_vertex_are_i_and_i_plus_1(name: str) -> None:
 
 
 def test_closest_waypoints_on_the_last_segment_are_n_minus_2_and_n_minus_1() -> None:
-    track = load_track("reinvent_base")
-    rows = track.file_rows
+    track = load_track(DEFAULT_TRACK)
+    rows = track.waypoints
     n = len(rows)
     mid = (rows[n - 2, :2] + rows[n - 1, :2]) / 2
     task = RacingTask(track)
     task.begin(n - 4, False)
-    got = observe_front_at(task, "reinvent_base", float(mid[0]), float(mid[1]), 0.0)
+    got = observe_front_at(task, DEFAULT_TRACK, float(mid[0]), float(mid[1]), 0.0)
     assert got["closest_waypoints"] == simapp_params(rows, *mid)["closest_waypoints"] == [n - 2, n - 1]
     assert len(got["waypoints"]) == n  # the closing row is kept, as in the simapp
 
 
-@pytest.mark.parametrize("name", ["reinvent_base", "Spain_track", "2022_summit_speedway"])
+@pytest.mark.parametrize("name", ["racer_loop", "racer_wide", "racer_straight"])
 def test_params_match_the_simapp_at_random_poses(name: str) -> None:
     track = load_track(name)
-    rows = track.file_rows
+    rows = track.waypoints
     task = RacingTask(track)
     rng = np.random.default_rng(7)
     for _ in range(60):
@@ -128,12 +149,43 @@ def test_params_match_the_simapp_at_random_poses(name: str) -> None:
         assert got["is_left_of_center"] == want["is_left_of_center"]
 
 
+@needs_deepracer_tracks
+@pytest.mark.parametrize("name", deepracer_track_names())
+def test_every_deepracer_route_reads_as_the_simapp_reads_it_both_ways(name: str) -> None:
+    # The simapp's waypoints and closest_waypoints on all 127 routes, both directions, at poses spread over the lap
+    # and across the road (reward functions index racing lines by them; one row too many shifts every index).
+    raw = np.load(SHARED_TRACKS / f"{name}.npy")
+    rows = simapp_sanitize(raw)
+    track = load_track(name)
+    assert np.array_equal(track.waypoints, rows[:, :6])
+    assert track.closed == bool(np.all(rows[0] == rows[-1]))
+    task = RacingTask(track)
+    rng = np.random.default_rng(abs(hash(name)) % 2**32)
+    for reverse in (False, True):
+        line = track.reversed() if reverse else track
+        directed = rows[::-1] if reverse else rows
+        end = line.length if line.closed else line.length - 0.3  # an open line's last 0.3 m ends the episode
+        for s in np.sort(rng.uniform(0.3 if not line.closed else 0.0, end, 12)):
+            (cx, cy), heading = line.point_at(s)
+            offset = rng.uniform(-0.45, 0.45) * line.width
+            x, y = cx - offset * math.sin(heading), cy + offset * math.cos(heading)
+            seg = int(np.searchsorted(line.cumulative, s, side="right") - 1)
+            task.begin(max(seg - 1, 0), reverse)
+            got = observe_front_at(task, name, x, y, heading)
+            want = simapp_params(directed, x, y, reverse)
+            assert got["waypoints"] == [tuple(p) for p in directed[:, 0:2].tolist()]
+            assert got["closest_waypoints"] == want["closest_waypoints"], (reverse, s)
+            assert got["track_width"] == pytest.approx(want["track_width"], abs=1e-6)
+            assert got["distance_from_center"] == pytest.approx(want["distance_from_center"], abs=1e-6)
+            assert got["is_left_of_center"] == want["is_left_of_center"]
+
+
 def test_speed_and_steering_are_the_actions_values_not_the_cars_limits(tmp_path: Path) -> None:
     # simapp set_reward_and_metrics: params speed = float(json_actions["speed"]), never clipped to 4 m/s.
     meta = {"action_space": [{"steering_angle": 0.0, "speed": 12.0}, {"steering_angle": 35.0, "speed": 4.89}]}
     path = tmp_path / "model_metadata.json"
     path.write_text(json.dumps(meta))
-    env = RacerEnv(track="reinvent_base", action_space=str(path))
+    env = RacerEnv(track=DEFAULT_TRACK, action_space=str(path))
     env.reset(seed=0, options={"start_index": 0})
     _, _, _, _, info = env.step(0)
     assert info["params"]["speed"] == 12.0 and info["command"][1] == 4.0
@@ -184,6 +236,7 @@ def drfc_folder(tmp_path: Path, run_env: str) -> Path:
     return tmp_path
 
 
+@needs_deepracer_tracks
 def test_drfc_run_env_is_mapped_and_the_rest_listed(tmp_path: Path) -> None:
     folder = drfc_folder(
         tmp_path,
@@ -220,10 +273,22 @@ def test_drfc_values_racer_cannot_honour_are_one_line_errors(tmp_path: Path, lin
     assert fragment in str(info.value) and "run.env" in str(info.value) and "\n" not in str(info.value)
 
 
-def racer(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "racer", *args], capture_output=True, text=True, timeout=120)
+def racer(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "racer", *args], capture_output=True, text=True, timeout=120, env=env)
 
 
+def test_a_drfc_world_not_in_the_track_folder_is_one_line_giving_the_pull_command(tmp_path: Path) -> None:
+    folder = drfc_folder(tmp_path / "drfc", "DR_WORLD_NAME=2024_reinvent_champ_ccw\n")
+    empty = tmp_path / "tracks"
+    empty.mkdir()
+    done = racer("check", "--from-drfc", str(folder), env={**os.environ, "RACER_TRACKS_DIR": str(empty)})
+    assert done.returncode == 2
+    err = done.stderr.strip()
+    assert "DR_WORLD_NAME='2024_reinvent_champ_ccw'" in err and "`racer tracks pull 2024_reinvent_champ_ccw`" in err
+    assert len(err.splitlines()) == 1, err
+
+
+@needs_deepracer_tracks
 def test_racer_check_says_what_racer_does_with_each_file(tmp_path: Path) -> None:
     folder = drfc_folder(tmp_path, "DR_WORLD_NAME=Spain_track\nDR_CAR_NAME=FastCar\n")
     done = racer("check", "--from-drfc", str(folder))
@@ -379,7 +444,7 @@ def test_a_pretrained_run_starts_from_the_source_runs_weights(redis_url, tmp_pat
     from trainer.process import Trainer, TrainerOptions
 
     store = str(tmp_path / "store")
-    source, files = build_run("source-run", track="Straight_track")
+    source, files = build_run("source-run", track=STRAIGHT_TRACK)
     Trainer(source, TrainerOptions(redis_url, store, run_files=files)).start()
     with torch.no_grad():  # give the source weights no fresh run could have by chance
         trained = Trainer(source, TrainerOptions(redis_url, store, resume=True))
@@ -388,7 +453,7 @@ def test_a_pretrained_run_starts_from_the_source_runs_weights(redis_url, tmp_pat
             p.fill_(0.125)
         trained.version = 1  # as after an update
         trained._checkpoint()
-    run, files = build_run("clone-run", track="Straight_track")
+    run, files = build_run("clone-run", track=STRAIGHT_TRACK)
     runs = RunStore(LocalStore(tmp_path / "store"))
     run = check_pretrained(runs, run, files, "source-run:latest")
     clone = Trainer(run, TrainerOptions(redis_url, store, run_files=files))
@@ -413,7 +478,7 @@ def test_what_the_function_prints_stays_out_of_racer_checks_output(tmp_path: Pat
     done = racer("check", "--reward-fn", str(path))
     assert done.returncode == 0, done.stderr
     assert "LOADED" not in done.stdout and "PARAMS" not in done.stdout
-    assert "reward_function.py: ran on reinvent_base in a throwaway env: ok" in done.stdout
+    assert f"reward_function.py: ran on {DEFAULT_TRACK} in a throwaway env: ok" in done.stdout
 
 
 def test_the_libraries_deepracer_documents_for_reward_functions_come_with_a_plain_install() -> None:

@@ -11,11 +11,14 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import sim  # noqa: F401  (registers sim:Racer-v0)
+from common.defaults import DEFAULT_TRACK
 from sim.env import OBS_SHAPE, RacerEnv, make_env
 from sim.physics import FRONT_POINT_M, Pose
 from sim.reward import PARAM_KEYS
 from sim.task import REVERSED_WINDOW_STEPS, TERMINAL, RacingTask, Status
-from sim.track import Track, bundled_track_names, load_track
+from sim.track import Track, load_track
+from sim.track_gen import racer_track_names
+from tests.shared_data import deepracer_track_names, needs_deepracer_tracks
 
 N = 60  # waypoints of the synthetic circle
 R = 2.0  # centre-line radius of the synthetic circle
@@ -364,13 +367,18 @@ def straight_ahead_action(env: RacerEnv, speed: float = 1.0) -> int:
 
 @pytest.fixture(scope="module")
 def base_env():
-    env = gymnasium.make("sim:Racer-v0", track="reinvent_base")
+    env = gymnasium.make("sim:Racer-v0", track=DEFAULT_TRACK)
     yield env
     env.close()
 
 
-def test_env_reset_params_match_deepracer_first_row(base_env):
-    obs, info = base_env.reset(seed=0)
+@needs_deepracer_tracks
+def test_env_reset_params_match_deepracer_first_row():
+    # DeepRacer's own first row of a reinvent_base episode: track_length 17.709, progress 0.7905 (the front point
+    # 0.14 m past the start line).
+    env = gymnasium.make("sim:Racer-v0", track="reinvent_base")
+    obs, info = env.reset(seed=0)
+    env.close()
     assert obs.shape == OBS_SHAPE
     assert obs.dtype == np.uint8
     assert info["episode_status"] == "prepare"
@@ -380,6 +388,13 @@ def test_env_reset_params_match_deepracer_first_row(base_env):
     assert params["track_length"] == pytest.approx(17.709, abs=1e-3)
     assert params["progress"] == pytest.approx(100 * 0.14 / 17.709, abs=1e-3)
     assert params["progress"] == pytest.approx(0.7905, abs=1e-3)
+
+
+def test_env_reset_on_racers_loop_starts_the_front_point_past_the_line(base_env):
+    _, info = base_env.reset(seed=0, options={"start_index": 0})
+    params = info["params"]
+    assert params["steps"] == 1 and params["track_length"] == pytest.approx(17.6, abs=0.01)
+    assert params["progress"] == pytest.approx(100 * 0.14 / params["track_length"], abs=1e-3)
 
 
 def test_env_driving_straight_ends_terminated(base_env):
@@ -398,7 +413,7 @@ def test_env_driving_straight_ends_terminated(base_env):
 
 
 def test_env_time_limit_truncates_with_time_up():
-    env = make_env("reinvent_base", time_limit_steps=5)
+    env = make_env(DEFAULT_TRACK, time_limit_steps=5)
     env.reset(seed=0, options={"start_index": 0})
     action = straight_ahead_action(env, 0.5)
     for k in range(1, 6):
@@ -411,7 +426,7 @@ def test_env_time_limit_truncates_with_time_up():
 
 def test_gymnasium_make_time_limit_truncates_with_time_up():
     # Our own limit: gymnasium.make keeps ``max_episode_steps`` for its TimeLimit wrapper.
-    env = gymnasium.make("sim:Racer-v0", track="reinvent_base", time_limit_steps=5)
+    env = gymnasium.make("sim:Racer-v0", track=DEFAULT_TRACK, time_limit_steps=5)
     env.reset(seed=0, options={"start_index": 0})
     action = straight_ahead_action(env.unwrapped, 0.5)
     for k in range(1, 6):
@@ -422,7 +437,7 @@ def test_gymnasium_make_time_limit_truncates_with_time_up():
 
 
 def run_episode(seed: int, actions: np.ndarray) -> tuple[list[np.ndarray], list[float], list]:
-    env = gymnasium.make("sim:Racer-v0", track="reinvent_base")
+    env = gymnasium.make("sim:Racer-v0", track=DEFAULT_TRACK)
     obs, info = env.reset(seed=seed)
     observations, rewards, poses = [obs], [], [info["pose"]]
     for action in actions:
@@ -456,7 +471,7 @@ def test_env_different_seeds_start_at_different_places(base_env):
 
 
 def test_env_passes_gymnasium_env_checker():
-    env = gymnasium.make("sim:Racer-v0", track="reinvent_base")
+    env = gymnasium.make("sim:Racer-v0", track=DEFAULT_TRACK)
     check_env(env.unwrapped)
     env.close()
 
@@ -474,8 +489,12 @@ def test_env_reverse_start_option(base_env):
     assert params["closest_waypoints"][0] in (10, 11)
 
 
-@pytest.mark.parametrize("name", bundled_track_names())
-def test_gymnasium_make_every_bundled_track(name):
+@pytest.mark.parametrize(
+    "name", racer_track_names() + [pytest.param(n, marks=needs_deepracer_tracks) for n in deepracer_track_names()]
+)
+def test_gymnasium_make_every_track(name):
+    # racer's own tracks, and every DeepRacer route (all 127, _cw/_ccw variants and championship tracks included,
+    # read in place from ../shared): each loads, passes the track checks and drives.
     env = gymnasium.make("sim:Racer-v0", track=name)
     obs, info = env.reset(seed=0)
     assert env.observation_space.contains(obs)

@@ -1,4 +1,5 @@
-"""Tests for sim.track: bundled tracks, .npy loading and validation, and the centre-line geometry."""
+"""Tests for sim.track: racer's own tracks, DeepRacer's (read in place from ../shared), .npy loading and
+sanitization as DeepRacer's simapp reads a route, and the centre-line geometry."""
 
 from __future__ import annotations
 
@@ -9,16 +10,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.track import Track, TrackError, bundled_track_names, load_track
+from common.defaults import DEFAULT_TRACK, STRAIGHT_TRACK
+from sim.track import Track, TrackError, known_track_names, load_track, sanitize_waypoints
+from sim.track_gen import racer_track_array, racer_track_names
+from tests.shared_data import needs_deepracer_tracks
 
-# Reference centre-line lengths (m) of the bundled tracks, whose sources sim/tracks/LICENSE names; kept here as
-# literals so that the loader is checked against fixed figures rather than against itself.
+# Centre-line lengths (m) of the most used DeepRacer tracks, as DeepRacer's track list gives them; literals, so the
+# loader is checked against fixed figures rather than against itself. The files are read from ../shared.
 EXPECTED_LENGTH_M = {
     "reinvent_base": 17.71,
     "Oval_track": 19.55,
     "Bowtie_track": 17.43,
     "AWS_track": 69.25,
-    "H_track": 100.85,
     "reInvent2019_track": 23.12,
     "reInvent2019_wide": 16.64,
     "Straight_track": 5.71,
@@ -26,6 +29,13 @@ EXPECTED_LENGTH_M = {
     "Tokyo_Training_track": 22.63,
     "2022_summit_speedway": 25.17,
     "Spain_track": 60.00,
+}
+# racer's own tracks: (length m, width m, direction), as sim/track_gen.py documents them.
+RACER_TRACKS = {
+    "racer_loop": (17.6, 0.76, "CCW"),
+    "racer_loop_cw": (17.6, 0.76, "CW"),
+    "racer_wide": (24.0, 1.07, "CCW"),
+    "racer_straight": (5.7, 0.61, "open"),
 }
 
 CIRCLE_POINTS = 60
@@ -65,15 +75,81 @@ def circle() -> Track:
     return Track.from_array(circle_array(), name="circle")
 
 
-# --- bundled tracks -------------------------------------------------------------------------------
+# --- racer's own tracks ---------------------------------------------------------------------------
 
 
-def test_bundled_track_names_are_the_documented_twelve():
-    assert sorted(bundled_track_names()) == sorted(EXPECTED_LENGTH_M)
+def test_racer_tracks_are_the_documented_four_and_the_default_is_one():
+    assert racer_track_names() == sorted(RACER_TRACKS)
+    assert DEFAULT_TRACK in RACER_TRACKS and STRAIGHT_TRACK == "racer_straight"
+    assert set(RACER_TRACKS) <= set(known_track_names())
 
 
-@pytest.mark.parametrize("name", bundled_track_names())
-def test_bundled_track_loads_with_documented_length(name):
+@pytest.mark.parametrize("name", sorted(RACER_TRACKS))
+def test_racer_track_loads_with_documented_size_and_direction(name, caplog):
+    length, width, direction = RACER_TRACKS[name]
+    with caplog.at_level("WARNING", logger="racer.track"):
+        track = load_track(name)
+    assert not caplog.records  # no border crossing, no near-closed loop
+    assert track.name == name and track.source == f"racer:{name}"
+    assert track.length == pytest.approx(length, abs=0.01)
+    assert track.widths == pytest.approx(np.full(len(track.widths), width))
+    assert ("open" if not track.closed else "CW" if track.clockwise else "CCW") == direction
+    steps = np.linalg.norm(np.diff(track.center, axis=0), axis=1)
+    assert steps.min() > 0.1 and steps.max() < 0.3  # DeepRacer's routes space waypoints 0.13-0.30 m apart
+    assert np.array_equal(track.waypoints, racer_track_array(name))  # nothing for the sanitizer to drop
+    assert track.bounds[0].min() >= 0.5 - 1e-9  # in x, y > 0 as DeepRacer's routes are
+
+
+@pytest.mark.parametrize("name", ["racer_loop", "racer_loop_cw", "racer_wide"])
+def test_racer_loops_bend_no_tighter_than_half_their_width(name):
+    # The borders are the centre line offset by half the width: where the centre line bends tighter than that the
+    # inner border would fold over itself. The loops also turn both ways (an S), as DeepRacer's tracks do.
+    track = load_track(name)
+    c = track.center[:-1]
+    a, b = np.roll(c, 1, axis=0), np.roll(c, -1, axis=0)
+    turn = np.cross(c - a, b - c) / (np.linalg.norm(c - a, axis=1) * np.linalg.norm(b - c, axis=1))
+    radius = np.linalg.norm(b - a, axis=1) / 2 / np.abs(np.arcsin(np.clip(turn, -1, 1)) + 1e-12)
+    assert radius.min() > track.width / 2 + 0.2
+    sign = -1 if track.clockwise else 1
+    assert (sign * turn < -0.01).any() and (sign * turn > 0.01).any()
+
+
+def test_racer_loop_cw_is_racer_loop_mirrored():
+    ccw, cw = load_track("racer_loop"), load_track("racer_loop_cw")
+    assert cw.length == pytest.approx(ccw.length, rel=1e-12)
+    np.testing.assert_allclose(cw.waypoints[:, 0::2], ccw.waypoints[:, 0::2], atol=1e-12)
+    np.testing.assert_allclose(cw.widths, ccw.widths, atol=1e-12)
+
+
+def test_racer_track_arrays_are_fresh_copies():
+    arr = racer_track_array(DEFAULT_TRACK)
+    arr[:] = 0.0
+    assert load_track(DEFAULT_TRACK).length == pytest.approx(17.6, abs=0.01)
+
+
+def test_a_deepracer_name_not_in_the_track_folder_gives_the_pull_command(tmp_path, monkeypatch):
+    monkeypatch.setenv("RACER_TRACKS_DIR", str(tmp_path))
+    with pytest.raises(TrackError) as info:
+        load_track("2024_reinvent_champ_ccw")
+    message = str(info.value)
+    assert "`racer tracks pull 2024_reinvent_champ_ccw`" in message and str(tmp_path) in message
+    assert "\n" not in message
+
+
+def test_a_track_in_the_track_folder_loads_by_name(tmp_path, monkeypatch):
+    monkeypatch.setenv("RACER_TRACKS_DIR", str(tmp_path))
+    np.save(tmp_path / "my_loop.npy", circle_array())
+    track = load_track("my_loop")
+    assert track.name == "my_loop" and track.source == str(tmp_path / "my_loop.npy") and track.closed
+    assert "my_loop" in known_track_names()
+
+
+# --- DeepRacer's tracks (read in place from ../shared) ---------------------------------------------
+
+
+@needs_deepracer_tracks
+@pytest.mark.parametrize("name", sorted(EXPECTED_LENGTH_M))
+def test_deepracer_track_loads_with_documented_length(name):
     track = load_track(name)
     assert track.name == name
     assert track.waypoints.shape[1] == 6
@@ -82,6 +158,7 @@ def test_bundled_track_loads_with_documented_length(name):
     assert track.closed == (name != "Straight_track")
 
 
+@needs_deepracer_tracks
 def test_straight_track_is_open():
     track = load_track("Straight_track")
     assert track.closed is False
@@ -89,6 +166,7 @@ def test_straight_track_is_open():
     assert track.road_polygons[1] is None
 
 
+@needs_deepracer_tracks
 def test_spain_track_is_clockwise():
     track = load_track("Spain_track")
     assert track.closed is True
@@ -96,11 +174,83 @@ def test_spain_track_is_clockwise():
     assert track.reversed().clockwise is False
 
 
+@needs_deepracer_tracks
 def test_reinvent_base_is_counter_clockwise():
     track = load_track("reinvent_base")
     assert track.closed is True
     assert track.clockwise is False
     assert track.reversed().clockwise is True
+
+
+@needs_deepracer_tracks
+def test_a_zero_length_step_in_a_deepracer_route_is_dropped():
+    # Spain_track's file has 259 rows, one of them a repeat of the row before (simapp route error correction #254).
+    raw = np.load(Path(os.environ["RACER_TRACKS_DIR"]) / "Spain_track.npy")
+    assert raw.shape == (259, 6)
+    track = load_track("Spain_track")
+    assert track.waypoints.shape == (258, 6)
+    assert np.array_equal(track.waypoints[-1], track.waypoints[0])
+
+
+# --- sanitization: the simapp's _sanitize_waypoints, by hand -----------------------------------------
+
+
+def test_sanitize_drops_a_zero_length_step_and_keeps_the_rest():
+    arr = circle_array(8)
+    with_repeat = np.insert(arr, 3, arr[2], axis=0)  # row 3 repeats row 2
+    out = sanitize_waypoints(with_repeat, "t")
+    assert np.array_equal(out, arr)
+
+
+def test_sanitize_keeps_a_loops_closing_row_even_when_the_step_before_it_is_zero():
+    # The simapp sanitizes a loop's rows before the closing one, then appends the closing row whatever it is: a
+    # last core row equal to the first row is kept, so the step into the closing row is zero-length.
+    arr = circle_array(8)
+    arr = np.vstack([arr[:-1], arr[:1], arr[:1]])  # ..., row 7, row 0 again, closing row
+    out = sanitize_waypoints(arr, "t")
+    assert len(out) == 10 and np.array_equal(out[-1], out[0]) and np.array_equal(out[-2], out[0])
+    track = Track.from_array(arr)  # the zero-length last step must not break the geometry
+    plain = Track.from_array(circle_array(8))
+    for point in ([2.0, 0.05], [1.9, -0.1], [0.1, 2.1]):
+        got, want = track.project(np.array([point])), plain.project(np.array([point]))
+        assert got.s[0] == pytest.approx(want.s[0]) and got.lateral[0] == pytest.approx(want.lateral[0])
+
+
+def test_sanitize_drops_zero_length_steps_of_an_open_line_anywhere():
+    arr = straight_array()
+    arr = np.vstack([arr, arr[-1:]])  # the last row repeated: an open line's last step is dropped too
+    assert np.array_equal(sanitize_waypoints(arr, "t"), straight_array())
+
+
+def test_sanitize_treats_only_an_exact_repeat_as_zero_length():
+    arr = straight_array()
+    arr[3, 0] = arr[2, 0] + 2e-9  # longer than the simapp's 1e-9 m
+    assert len(sanitize_waypoints(arr, "t")) == len(arr)
+    arr[3, 0] = arr[2, 0] + 0.5e-9
+    assert len(sanitize_waypoints(arr, "t")) == len(arr) - 1
+
+
+def test_a_loop_closes_only_when_first_and_last_rows_are_equal_in_every_column(caplog):
+    arr = circle_array()
+    assert Track.from_array(arr).closed
+    arr[-1, 4] += 1e-6  # outer border's last x differs: the simapp's np.all(row0 == row-1) is False
+    with caplog.at_level("WARNING", logger="racer.track"):
+        track = Track.from_array(arr)
+    assert not track.closed and "open line" in caplog.text
+
+
+def test_columns_past_the_sixth_are_read_as_the_simapp_reads_them():
+    arr = np.column_stack([circle_array(), np.arange(CIRCLE_POINTS + 1.0)])  # a 7th column the simapp ignores
+    track = Track.from_array(arr)
+    assert track.waypoints.shape == (CIRCLE_POINTS + 1, 6)
+    assert not track.closed  # ... except in its loop test, which compares whole rows (0 != 60 in column 7)
+
+
+def test_non_finite_value_names_row_and_column():
+    arr = circle_array()
+    arr[7, 3] = np.inf
+    with pytest.raises(TrackError, match=r"row 7, column 3"):
+        sanitize_waypoints(arr, "t")
 
 
 # --- loading a .npy path --------------------------------------------------------------------------
@@ -168,7 +318,7 @@ def test_one_dimensional_array_is_a_track_error(tmp_path):
 def test_nan_value_is_a_track_error(tmp_path):
     arr = circle_array()
     arr[7, 3] = np.nan
-    assert_track_error(save(tmp_path, arr), "row 7")
+    assert_track_error(save(tmp_path, arr), "row 7, column 3")
 
 
 def test_too_few_points_is_a_track_error(tmp_path):
@@ -223,12 +373,12 @@ def test_object_array_is_refused_without_unpickling(tmp_path):
     assert not marker.exists()
 
 
-def test_unknown_track_name_lists_bundled_names():
+def test_unknown_track_name_lists_racers_tracks_and_where_to_find_deepracers():
     with pytest.raises(TrackError) as info:
         load_track("no_such_track")
     message = str(info.value)
-    assert "no_such_track" in message
-    for name in bundled_track_names():
+    assert "no_such_track" in message and "racer tracks ls" in message
+    for name in racer_track_names():
         assert name in message
 
 

@@ -9,6 +9,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from common.defaults import DEFAULT_TRACK, STRAIGHT_TRACK
 from common.errors import OptionError
 from racer.commands.options import Car, Hyperparams, JsonOut, Track, console, int_list, write_json
 
@@ -17,7 +18,7 @@ app = typer.Typer(no_args_is_help=True, help="Benchmarks.")
 
 @app.command("env")
 def env(
-    track: Track = "reinvent_base",
+    track: Track = DEFAULT_TRACK,
     steps: Annotated[int, typer.Option(min=100, help="Env steps per timed run.")] = 3000,
     repeats: Annotated[int, typer.Option(min=1, help="Timed runs; the median is reported.")] = 5,
     camera: Annotated[str, typer.Option(help="Camera path: ground or mujoco.")] = "ground",
@@ -80,7 +81,7 @@ _ENV_PARTS = ("physics", "camera", "task", "reward")
 
 @app.command("transport")
 def transport(
-    track: Track = "reinvent_base",
+    track: Track = DEFAULT_TRACK,
     segments: Annotated[int, typer.Option(min=3, help="Segments to time.")] = 30,
     segment_steps: Annotated[int, typer.Option(min=1, help="Env steps per segment.")] = 32,
     json_out: JsonOut = None,
@@ -97,7 +98,7 @@ def transport(
 def loop(
     workers: Annotated[str, typer.Option(help="Comma-separated worker counts.")] = "1,2,4",
     duration: Annotated[str, typer.Option(help="Run time per worker count (90s, 5m).")] = "90s",
-    track: Track = "reinvent_base",
+    track: Track = DEFAULT_TRACK,
     hyperparams: Hyperparams = None,
     json_out: JsonOut = None,
 ) -> None:
@@ -131,7 +132,7 @@ def loop(
 def train(
     seeds: Annotated[str, typer.Option(help="Comma-separated seeds; medians are over them.")] = "0,1,2",
     time_limit: Annotated[str, typer.Option(help="Give up on a seed after this long, per system (10m).")] = "10m",
-    track: Track = "reinvent_base",
+    track: Track = DEFAULT_TRACK,
     workers: Annotated[int, typer.Option(min=1, help="racer's workers and SB3's SubprocVecEnv envs.")] = 2,
     hyperparams: Hyperparams = None,
     eval_episodes: Annotated[int, typer.Option(min=1, help="Evaluation starts per direction.")] = 3,
@@ -176,7 +177,7 @@ def _whole(value: float | None) -> str:
 @app.command("race")
 def race(
     car: Annotated[str, typer.Option(help="Car: a preset name (default) or a car.json.")] = "default",
-    track: Annotated[str, typer.Option(help="Track name or .npy path (a loop).")] = "reinvent_base",
+    track: Annotated[str, typer.Option(help="Track name or .npy path (a loop).")] = DEFAULT_TRACK,
     minutes: Annotated[float, typer.Option(min=0.5, help="Training budget per seed, minutes.")] = 30.0,
     seeds: Annotated[str, typer.Option(help="Comma-separated seeds; medians are over them.")] = "0,1,2",
     workers: Annotated[int, typer.Option(min=1, help="Rollout workers.")] = 2,
@@ -265,7 +266,7 @@ def oa(
     ] = "OBJECT_AVOIDANCE",
     minutes: Annotated[float, typer.Option(min=0.5, help="Training budget per seed, minutes.")] = 60.0,
     seeds: Annotated[str, typer.Option(help="Comma-separated seeds; medians are over them.")] = "0",
-    track: Annotated[str, typer.Option(help="Track name or .npy path (a loop).")] = "reinvent_base",
+    track: Annotated[str, typer.Option(help="Track name or .npy path (a loop).")] = DEFAULT_TRACK,
     workers: Annotated[int, typer.Option(min=1, help="Rollout workers.")] = 2,
     eval_trials: Annotated[
         int, typer.Option(min=1, help="Evaluation trials per checkpoint (start points, each its own placement).")
@@ -320,7 +321,7 @@ def update(
 def soak(
     duration: Annotated[str, typer.Option(help="Run time (90s, 10m, 2h).")] = "10m",
     workers: Annotated[int, typer.Option(min=1, help="Rollout worker processes.")] = 2,
-    track: Track = "Straight_track",
+    track: Track = STRAIGHT_TRACK,
     stream_maxlen: Annotated[int, typer.Option(min=4, help="Cap of the segment stream, entries.")] = 16,
     json_out: JsonOut = None,
 ) -> None:

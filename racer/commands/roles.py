@@ -8,6 +8,7 @@ from typing import Annotated
 
 import typer
 
+from common.defaults import DEFAULT_TRACK
 from racer.commands.options import Endpoint, Outage, Redis, RunId, Store, Verbose, console, json_option, write_json
 
 
@@ -18,7 +19,7 @@ def trainer(
     config: Annotated[Path | None, typer.Option(help="RunConfig JSON (written by racer train).")] = None,
     files: Annotated[Path | None, typer.Option(help="Folder with the run's files (written by racer train).")] = None,
     run_id: Annotated[str | None, typer.Option("--run-id", envvar="RACER_RUN_ID", help="Run id.")] = None,
-    track: Annotated[str, typer.Option(envvar="RACER_TRACK", help="Track name or .npy path.")] = "reinvent_base",
+    track: Annotated[str, typer.Option(envvar="RACER_TRACK", help="Track name or .npy path.")] = DEFAULT_TRACK,
     reward_fn: Annotated[Path | None, typer.Option("--reward-fn", envvar="RACER_REWARD_FN")] = None,
     action_space: Annotated[Path | None, typer.Option("--action-space", envvar="RACER_ACTION_SPACE")] = None,
     hyperparams: Annotated[Path | None, typer.Option("--hyperparams", envvar="RACER_HYPERPARAMS")] = None,

@@ -1,4 +1,5 @@
-"""``racer tracks`` (the bundled tracks, listed and drawn) and ``racer drive`` (a random policy on one)."""
+"""``racer tracks`` (racer's and DeepRacer's tracks: listed, pulled and drawn) and ``racer drive`` (a random policy on
+one)."""
 
 from __future__ import annotations
 
@@ -8,27 +9,74 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from common.defaults import DEFAULT_TRACK
 from racer.commands.options import ActionSpace, RaceFile, RaceTypeOpt, Track, console, json_option, write_json
 
-app = typer.Typer(no_args_is_help=True, help="The bundled DeepRacer tracks.")
+app = typer.Typer(no_args_is_help=True, help="racer's tracks and DeepRacer's: list, pull (verified) and draw them.")
 
 
 @app.command("ls")
 def ls() -> None:
-    """List the bundled tracks with their length, width and direction."""
-    from sim.track import bundled_track_names, load_track
+    """List racer's own tracks and the DeepRacer tracks in the track folder (length, width, direction), then the
+    DeepRacer tracks that can be pulled."""
+    from sim.routes import cached_route_names, deepracer_route_names, tracks_dir
+    from sim.track import load_track
+    from sim.track_gen import racer_track_names
 
-    table = Table("track", "length m", "width m", "direction", "waypoints")
-    for name in bundled_track_names():
-        t = load_track(name)
-        direction = "open" if not t.closed else ("CW" if t.clockwise else "CCW")
-        table.add_row(name, f"{t.length:.2f}", f"{t.width:.2f}", direction, str(len(t.center)))
+    folder = tracks_dir()
+    table = Table("track", "kind", "length m", "width m", "direction", "waypoints")
+    for kind, names in (("racer", racer_track_names()), ("DeepRacer", cached_route_names(folder))):
+        for name in names:
+            t = load_track(name if kind == "racer" else folder / f"{name}.npy")
+            direction = "open" if not t.closed else ("CW" if t.clockwise else "CCW")
+            table.add_row(name, kind, f"{t.length:.2f}", f"{t.width:.2f}", direction, str(len(t.center)))
     console.print(table)
+    cached = set(cached_route_names(folder))
+    missing = [n for n in deepracer_route_names() if n not in cached]
+    console.print(f"track folder: {folder} (RACER_TRACKS_DIR)", highlight=False, soft_wrap=True)
+    if missing:
+        console.print(
+            f"{len(missing)} DeepRacer tracks can be pulled (`racer tracks pull NAME...` or `--all`): "
+            + ", ".join(missing),
+            highlight=False,
+            soft_wrap=True,
+        )
+
+
+@app.command("pull")
+def pull(
+    names: Annotated[list[str] | None, typer.Argument(help="DeepRacer track names (see racer tracks ls).")] = None,
+    all_: Annotated[bool, typer.Option("--all", help="Pull all 127 DeepRacer tracks.")] = False,
+    source: Annotated[
+        str | None,
+        typer.Option(
+            "--from",
+            envvar="RACER_TRACKS_FROM",
+            help="Base URL (http, https, file) or local folder to pull from [default: the community simapp's "
+            "bundle/routes at the commit racer follows].",
+        ),
+    ] = None,
+    folder: Annotated[
+        Path | None,
+        typer.Option("--dir", help="Track folder to write [default: RACER_TRACKS_DIR or ~/.cache/racer/tracks]."),
+    ] = None,
+) -> None:
+    """Download DeepRacer route files into the track folder, each checked against the sha256 racer ships."""
+    from common.errors import OptionError
+    from sim.routes import deepracer_route_names, pull, tracks_dir
+
+    if all_ == bool(names):
+        raise OptionError("racer tracks pull: give track names or --all (not both)")
+    wanted = deepracer_route_names() if all_ else list(names or [])
+    pulled = pull(wanted, source, folder)
+    fresh = sum(p.fresh for p in pulled)
+    where = folder or tracks_dir()
+    console.print(f"{fresh} pulled, {len(pulled) - fresh} already there, in {where}", highlight=False, soft_wrap=True)
 
 
 @app.command("show")
 def show(
-    track: Annotated[str, typer.Argument(help="Bundled track name or path to a DeepRacer .npy file.")],
+    track: Annotated[str, typer.Argument(help="Track name or path to a DeepRacer .npy file.")],
     png: Annotated[Path, typer.Option("--png", help="Write the picture to this PNG file.")],
     start: Annotated[int, typer.Option(help="Waypoint where the car is placed.")] = 0,
     camera: Annotated[str, typer.Option(help="Camera path: ground or mujoco.")] = "ground",
@@ -41,7 +89,7 @@ def show(
 
 
 def drive(
-    track: Track = "reinvent_base",
+    track: Track = DEFAULT_TRACK,
     episodes: Annotated[int, typer.Option(min=1, help="Episodes to drive.")] = 5,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     reward_fn: Annotated[Path | None, typer.Option("--reward-fn", help="DeepRacer reward function file.")] = None,

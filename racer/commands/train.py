@@ -21,7 +21,7 @@ from racer.commands.options import (
     console,
 )
 
-TrackOpt = Annotated[str | None, typer.Option(help="Track name or .npy path [default: reinvent_base].")]
+TrackOpt = Annotated[str | None, typer.Option(help="Track name or .npy path [default: racer_loop].")]
 
 
 def train(

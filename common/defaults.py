@@ -1,0 +1,8 @@
+"""Defaults that several layers share, kept in one place."""
+
+DEFAULT_TRACK = "racer_loop"
+"""The track every command uses when none is given: one of racer's own generated tracks (``sim/track_gen.py``), so
+a fresh machine trains with no download and no network."""
+
+STRAIGHT_TRACK = "racer_straight"
+"""racer's open track (a straight line, no lap), for what needs a track without a lap."""
