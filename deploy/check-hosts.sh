@@ -220,7 +220,7 @@ cat >"$WORK/hyperparameters.json" <<'EOF'
 EOF
 STORE=s3://$BUCKET/check
 RACER_REDIS_URL=$SERVER_REDIS start "$SRV" "$WORK/trainer.log" timeout -s TERM "$MAX_S" "$PY" -m racer trainer \
-  --run-id "$RUN_ID" --track reinvent_base --hyperparams "$WORK/hyperparameters.json" \
+  --run-id "$RUN_ID" --track racer_loop --hyperparams "$WORK/hyperparameters.json" \
   --store "$STORE" --s3-endpoint "$S3_URL" --time-limit "${MAX_S}s"
 TRAINER=${PIDS[-1]}
 RACER_REDIS_URL=$SERVER_REDIS start "$SRV" "$WORK/probe.log" "$PY" "$ROOT/deploy/hosts_probe.py" sample \
