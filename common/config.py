@@ -136,7 +136,7 @@ class EnvConfig(_Strict):
     """One simulated world: track, car, camera, reward, actions and randomization."""
 
     track: str = DEFAULT_TRACK
-    """A bundled DeepRacer track name or a path to a DeepRacer .npy waypoint file."""
+    """A track name (racer's own, or a DeepRacer track in the track folder) or a path to a DeepRacer .npy file."""
     reward_fn: str | None = None
     """Path to a DeepRacer reward-function .py file; None = follow the centre line (DeepRacer's example 1)."""
     action_space: str | None = None
