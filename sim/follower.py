@@ -27,7 +27,7 @@ period) and asks for the speed that takes the car's speed servo, a first-order l
 (``CarLimits.speed_tau_s``), from its speed to that one in that period (:func:`lead_speed`), divided by the car's
 speed-per-command ratio (its wheels slip slightly) and clipped to its commands.
 
-Measured on the 11 loops of DeepRacer's 12 most used tracks (docs/racing.md, ``racer limit``, 2026-11-28 evening, one AMD EPYC): the default
+Measured on 11 DeepRacer loops (docs/racing.md, ``racer limit``, 2026-11-28 evening, one AMD EPYC): the default
 car is driven within 1.9 % of its limit on each (mean +1.2 %), the Gazebo car within 5 % on 10 (-1.4 % .. +3.8 %)
 and 5.9 % over on AWS_track (mean +1.0 %). Before (the speed read 0.12 s ahead of the nearest line point, v
 interpolated linearly): the default car within 5 % on 9 (mean +3.1 %), the Gazebo car on 11 (mean +1.4 %; AWS_track
