@@ -340,7 +340,8 @@ def _example_files() -> dict[str, Path]:
 
 
 EXAMPLES: dict[str, Path] = _example_files()
-"""Shipped example reward files by name: DeepRacer's documented examples and racer's ``default``."""
+"""Shipped example reward files by name: racer's ``default``, its versions of DeepRacer's documented examples (the
+same rewards, racer's own code), ``racing_line`` and ``object_avoidance``."""
 
 
 def example_path(name: str) -> Path:

@@ -1,33 +1,16 @@
-# ruff: noqa
-# fmt: off
-# racer's default reward function, used when the user gives none. It is the same as
-# follow_center_line.py: AWS DeepRacer's documented example 1, "Follow the center line in
-# time trials", from the AWS DeepRacer Developer Guide (code samples MIT-0), copied
-# unmodified below so the default behaves exactly like DeepRacer's first example.
-# tests/test_reward.py checks that the two functions stay identical.
+# racer's default reward function, used when the user gives none: the same function as follow_center_line.py
+# (the rewards of AWS DeepRacer's first documented example), so the default behaves as DeepRacer's first example.
+# A DeepRacer reward function: it runs unchanged in the DeepRacer console and DRfC.
+
+BANDS = ((0.1, 1.0), (0.25, 0.5), (0.5, 0.1))  # (share of the track width from the centre line, reward)
+OFF_ROAD = 1e-3
+
 
 def reward_function(params):
-    '''
-    Example of rewarding the agent to follow center line
-    '''
-    
-    # Read input parameters
-    track_width = params['track_width']
-    distance_from_center = params['distance_from_center']
-
-    # Calculate 3 markers that are increasingly further away from the center line
-    marker_1 = 0.1 * track_width
-    marker_2 = 0.25 * track_width
-    marker_3 = 0.5 * track_width
-
-    # Give higher reward if the car is closer to center line and vice versa
-    if distance_from_center <= marker_1:
-        reward = 1
-    elif distance_from_center <= marker_2:
-        reward = 0.5
-    elif distance_from_center <= marker_3:
-        reward = 0.1
-    else:
-        reward = 1e-3  # likely crashed/ close to off track
-
-    return reward
+    """The reward of the first band, counted out from the centre line, that holds the car."""
+    distance = params["distance_from_center"]
+    width = params["track_width"]
+    for share, reward in BANDS:
+        if distance <= share * width:
+            return float(reward)
+    return OFF_ROAD
