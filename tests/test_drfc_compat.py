@@ -33,8 +33,6 @@ from sim.track import load_track
 from tests.shared_data import SHARED_TRACKS, deepracer_track_names, needs_deepracer_tracks
 
 PATTERNS = Path(__file__).parent / "data" / "reward_patterns"
-# racer's loop both ways round, and a DeepRacer track with negative coordinates (Spain_track, clockwise).
-TRACKS = ("racer_loop", "racer_loop_cw", pytest.param("Spain_track", marks=needs_deepracer_tracks))
 
 
 # --- the simapp's computation, with shapely ---------------------------------------------------------------------
@@ -106,6 +104,8 @@ def test_closest_waypoints_at_a_vertex_are_i_and_i_plus_1(name: str) -> None:
         if abs(a[0] * b[1] - a[1] * b[0]) / (np.linalg.norm(a) * np.linalg.norm(b)) < 0.02:
             continue  # too straight for a wedge of any size
         x, y = wedge_point(rows, i)
+        if LinearRing(rows[:, 0:2]).distance(Point(x, y)) < math.dist((x, y), rows[i, :2]) - 1e-12:
+            continue  # the vertex is not the nearest point (the bend's inside): a tie between two segments
         expected = simapp_params(rows, x, y)
         if expected["closest_waypoints"] != [i, i + 1]:
             continue  # the point fell just off the vertex (a neighbouring segment is nearer)
@@ -194,24 +194,7 @@ def test_speed_and_steering_are_the_actions_values_not_the_cars_limits(tmp_path:
     assert info["command"][0] == 30.0
 
 
-# --- reward functions that keep state, run unchanged ------------------------------------------------------------
-
-
-@pytest.mark.parametrize("pattern", sorted(p.name for p in PATTERNS.glob("*.py")))
-@pytest.mark.parametrize("track", TRACKS)
-def test_reward_patterns_run_300_steps_both_directions_after_the_check(pattern: str, track: str) -> None:
-    config = EnvConfig(track=track, reward_fn=str(PATTERNS / pattern), randomization={"alternate_direction": True})
-    preflight_reward(config)  # must neither fail nor leave state behind for training
-    env = RacerEnv(config=config)
-    env.reset(seed=1)
-    directions, rng = set(), np.random.default_rng(0)
-    for _ in range(300):
-        _, reward, term, trunc, info = env.step(int(rng.integers(env.actions.n)))
-        assert math.isfinite(reward)
-        directions.add(info["params"]["is_reversed"])
-        if term or trunc:
-            env.reset()
-    assert directions == {False, True}
+# --- reward functions (the patterns run unchanged in tests/test_community_files.py) ---------------------------
 
 
 def test_a_failing_reward_fails_in_one_line_naming_file_and_line(tmp_path: Path) -> None:
