@@ -19,6 +19,7 @@ import threading
 import time
 from pathlib import Path
 
+from common.defaults import STRAIGHT_TRACK
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
 from trainer.process import Trainer, TrainerOptions
@@ -109,9 +110,9 @@ class TcpProxy:
 
 
 def write_run(tmp: Path, run_id: str, **updates) -> Path:
-    """A small fast run on Straight_track (config + files) for ``racer trainer --config``; returns the config."""
+    """A small fast run on STRAIGHT_TRACK (config + files) for ``racer trainer --config``; returns the config."""
     (tmp / "hp.json").write_text(json.dumps(FAST_HP))
-    run, files = build_run(run_id, track="Straight_track", hyperparams=str(tmp / "hp.json"))
+    run, files = build_run(run_id, track=STRAIGHT_TRACK, hyperparams=str(tmp / "hp.json"))
     run = run.model_copy(update={"segment_steps": 16, "heartbeat_ttl_s": 3.0, **updates})
     files_dir = tmp / "files"
     files_dir.mkdir(exist_ok=True)
@@ -186,9 +187,9 @@ def rss_mb(pid: int) -> float:
 
 
 def trainer_and_worker(url: str, store: str, tmp: Path, run_id: str) -> tuple[Trainer, RolloutWorker]:
-    """An in-process trainer (started, v0 published) and worker (started) of a small run on Straight_track."""
+    """An in-process trainer (started, v0 published) and worker (started) of a small run on racer's straight track."""
     (tmp / "hp.json").write_text(json.dumps(FAST_HP))
-    run, files = build_run(run_id, track="Straight_track", hyperparams=str(tmp / "hp.json"))
+    run, files = build_run(run_id, track=STRAIGHT_TRACK, hyperparams=str(tmp / "hp.json"))
     run = run.model_copy(update={"segment_steps": 8})
     trainer = Trainer(run, TrainerOptions(url, store, run_files=files, tensorboard=False))
     trainer.start()

@@ -25,6 +25,7 @@ from common.action_space import (
     default_action_space,
     load_action_space,
 )
+from common.defaults import DEFAULT_TRACK
 from sim.env import RacerEnv
 
 DISCRETE_METADATA = (
@@ -57,7 +58,7 @@ def continuous(steer: tuple[float, float], speed: tuple[float, float]) -> Action
 @pytest.fixture(scope="module")
 def continuous_env(tmp_path_factory: pytest.TempPathFactory) -> RacerEnv:
     path = write(tmp_path_factory.mktemp("continuous"), CONTINUOUS_METADATA)
-    return RacerEnv(track="reinvent_base", action_space=str(path))
+    return RacerEnv(track=DEFAULT_TRACK, action_space=str(path))
 
 
 # --- the default space ----------------------------------------------------------------------------------
@@ -74,7 +75,7 @@ def test_default_action_space() -> None:
 
 
 def test_default_env_has_discrete_10() -> None:
-    env = RacerEnv(track="reinvent_base")
+    env = RacerEnv(track=DEFAULT_TRACK)
     assert env.action_space == gymnasium.spaces.Discrete(10)
     assert env.actions == default_action_space()
 
@@ -107,7 +108,7 @@ def test_load_discrete_metadata(tmp_path: Path) -> None:
 
 def test_load_discrete_metadata_into_env(tmp_path: Path) -> None:
     path = write(tmp_path, DISCRETE_METADATA)
-    env = gymnasium.make("sim:Racer-v0", track="reinvent_base", action_space=str(path))
+    env = gymnasium.make("sim:Racer-v0", track=DEFAULT_TRACK, action_space=str(path))
     try:
         assert env.action_space == gymnasium.spaces.Discrete(2)
         env.reset(seed=0)

@@ -8,6 +8,7 @@ import pytest
 
 from common.car_calibration import EFFECTS, CalibrationError, CarCalibration, load_calibration, save_calibration
 from common.config import EnvConfig
+from common.defaults import DEFAULT_TRACK
 from sim.actuation import Actuation, ActuationParams, actuate_sequence
 from sim.env import RacerEnv
 from sim.physics import CarPhysics, Pose
@@ -180,7 +181,7 @@ def test_tyre_friction_sets_the_contact_friction():
 
 def test_env_applies_the_calibration_from_its_config():
     cal = CarCalibration.from_values({"speed_lag": {"tau_s": 0.5}})
-    plain, calibrated = RacerEnv(EnvConfig(track="Oval_track")), RacerEnv(EnvConfig(track="Oval_track", car=cal))
+    plain, calibrated = RacerEnv(EnvConfig(track=DEFAULT_TRACK)), RacerEnv(EnvConfig(track=DEFAULT_TRACK, car=cal))
     speeds = []
     for env in (plain, calibrated):
         env.reset(seed=1, options={"start_index": 0})

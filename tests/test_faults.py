@@ -18,6 +18,7 @@ from functools import partial
 import redis
 import torch
 
+from common.defaults import STRAIGHT_TRACK
 from common.keys import Keys
 from common.policy import state_dict_from_bytes
 from common.protocol import ProtocolError, decode_segment
@@ -250,7 +251,7 @@ def test_a_reward_function_failing_mid_run_stops_racer_train_with_one_line(tmp_p
         "        raise ValueError('boom at a late step')\n"
         "    return 1.0\n"
     )
-    cmd = ["train", "--workers", "1", "--track", "Straight_track", "--reward-fn", "reward.py", "--no-eval"]
+    cmd = ["train", "--workers", "1", "--track", STRAIGHT_TRACK, "--reward-fn", "reward.py", "--no-eval"]
     cmd += ["--time-limit", "300s", "--redis", redis_url, "--run-id", "bad-reward"]
     t0 = time.monotonic()
     out = subprocess.run(

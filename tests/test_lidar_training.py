@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from common.action_space import load_action_space
+from common.defaults import STRAIGHT_TRACK
 from common.policy import action_space_spec, build_policy, checkpoint_to_bytes, load_policy
 from common.protocol import decode_segment, encode_segment
 from common.sensors import LIDARS, check_lidar, observation_spec, split_observation
@@ -82,7 +83,7 @@ def write_files(folder: Path, sensors: list[str], actions: list | dict, stack_si
 
 def start(run_id: str, redis_url: str, store: str, meta: str, hp: str) -> tuple[Trainer, RolloutWorker]:
     """A trainer (version 0 published) and one worker acting with it, on the short straight track."""
-    run, files = build_run(run_id, track="Straight_track", action_space=meta, hyperparams=hp)
+    run, files = build_run(run_id, track=STRAIGHT_TRACK, action_space=meta, hyperparams=hp)
     run = run.model_copy(update={"segment_steps": 16})
     trainer = Trainer(run, TrainerOptions(redis_url, store, run_files=files))
     trainer.start()
@@ -166,7 +167,7 @@ def test_the_evaluator_drives_a_stereo_lidar_checkpoint(redis_url, run_id, tmp_p
 def test_racer_car_drives_a_stereo_model_from_two_cameras(tmp_path):
     """``racer car --right-source``: the exported stereo model reads the left and right cameras in step."""
     meta, hp = write_files(tmp_path, ["STEREO_CAMERAS"], DISCRETE, 1)
-    run, files = build_run("stereo", track="Straight_track", action_space=meta, hyperparams=hp)
+    run, files = build_run("stereo", track=STRAIGHT_TRACK, action_space=meta, hyperparams=hp)
     runs = RunStore(open_store(str(tmp_path / "store")))
     for name, data in files.items():
         runs.write_file("stereo", name, data)

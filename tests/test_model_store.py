@@ -364,11 +364,12 @@ def test_run_files_round_trip(store):
 
 def test_run_config_round_trip_and_a_bad_one_is_one_line_naming_run_file_key_and_value(store):
     from common.config import EnvConfig, RunConfig
+    from common.defaults import STRAIGHT_TRACK
 
     runs = RunStore(store)
     with pytest.raises(StoreKeyError, match="run 'r1' does not exist"):
         runs.read_config("r1")
-    run = RunConfig(run_id="r1", env=EnvConfig(track="Straight_track"), seed=7)
+    run = RunConfig(run_id="r1", env=EnvConfig(track=STRAIGHT_TRACK), seed=7)
     runs.write_config(run)
     assert runs.read_config("r1") == run
     assert json.loads(runs.read_file("r1", "config.json"))["seed"] == 7  # the file every process reads

@@ -11,13 +11,15 @@ import numpy as np
 import pytest
 
 from common.config import EnvConfig
+from common.defaults import DEFAULT_TRACK
 from common.race import RaceConfig
 from sim.env import RacerEnv, preflight_reward
 from sim.reward import example_path, load_reward_function
 from sim.track import load_track
 
 PATH = example_path("object_avoidance")
-TRACKS = ("reinvent_base", "2022_summit_speedway", "Spain_track")
+TRACKS = (DEFAULT_TRACK, "racer_wide", "racer_loop_cw")
+"""Every kind of track: a loop of reinvent_base's size, a wide one (1.07 m, as the 2022 tracks), a clockwise one."""
 BOXES = RaceConfig(
     race_type="OBJECT_AVOIDANCE", object_avoidance={"number_of_obstacles": 3, "randomize_obstacle_locations": True}
 )
@@ -106,7 +108,7 @@ def test_it_pays_more_in_the_free_lane_than_in_the_lane_of_the_box_ahead(track: 
 
 def test_it_pays_more_in_the_free_lane_while_passing_a_box() -> None:
     """A box just passed (closest_objects[0], a few centimetres behind the car's front) is still beside the car."""
-    env = RacerEnv(track="reinvent_base", camera="ground", race=one_box("reinvent_base", 0.8, 1))
+    env = RacerEnv(track=DEFAULT_TRACK, camera="ground", race=one_box(DEFAULT_TRACK, 0.8, 1))
     _, info = env.reset(seed=0, options={"start_index": 0})
     env.close()
     params = info["params"]
@@ -148,7 +150,7 @@ def _lap_return(fn, params: dict, steps: int) -> float:
 def test_a_faster_lap_earns_more_than_a_slower_one() -> None:
     # The bug this guards against: a per-step reward not weighted by pace pays a slow lap more (it has more
     # steps), and the learner drifts to slower laps (docs/racing.md, the 2026-11-25 bench).
-    env = RacerEnv(track="reinvent_base", camera="ground", race=BOXES)
+    env = RacerEnv(track=DEFAULT_TRACK, camera="ground", race=BOXES)
     _, info = env.reset(seed=0, options={"start_index": 0})
     env.close()
     params = dict(info["params"], distance_from_center=0.0, all_wheels_on_track=True)

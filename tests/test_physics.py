@@ -6,6 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from common.defaults import DEFAULT_TRACK
 from sim.env import RacerEnv
 from sim.physics import WHEEL_RADIUS_M, CarPhysics, Pose
 from sim.texture import TextureFrame
@@ -15,7 +16,7 @@ from sim.world import CONTROL_HZ, PHYSICS_SUBSTEPS, build_model
 
 @pytest.fixture(scope="module")
 def physics() -> CarPhysics:
-    track = load_track("reinvent_base")
+    track = load_track(DEFAULT_TRACK)
     return CarPhysics(build_model(TextureFrame.for_track(track)))
 
 
@@ -109,7 +110,7 @@ def test_wheel_positions_are_the_four_corners(physics):
 
 
 def test_env_render_rgb_array_shows_the_track():
-    env = RacerEnv(track="reinvent_base", render_mode="rgb_array")
+    env = RacerEnv(track=DEFAULT_TRACK, render_mode="rgb_array")
     env.reset(seed=0)
     img = env.render()
     assert img.ndim == 3 and img.shape[2] == 3 and img.shape[1] == 800

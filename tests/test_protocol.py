@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import redis
 
+from common.defaults import DEFAULT_TRACK
 from common.keys import Keys, check_run_id
 from common.protocol import (
     EpisodeSummary,
@@ -37,7 +38,7 @@ def make_segment(run_id="run-a", steps=4, discrete=True, seed=0) -> Segment:
         "next_values": rng.random(steps).astype(np.float32),
         "episode_id": np.full(steps, 7, np.int64),
     }
-    ep = EpisodeSummary(7, 12, 33.5, 4.2, "off_track", "reinvent_base", None)
+    ep = EpisodeSummary(7, 12, 33.5, 4.2, "off_track", DEFAULT_TRACK, None)
     return Segment(run_id, "w-0", 3, 1000, arrays, [ep])
 
 
@@ -141,7 +142,7 @@ def test_policy_version_and_heartbeat_roundtrip_and_validation():
         with pytest.raises(ProtocolError, match=f"bad_policy_version.*PolicyVersion.{field_name}"):
             PolicyVersion.from_json(bad)
     hb = Heartbeat(
-        worker_id="w", pid=12, host="host", policy_version=3, env_steps=100, segments=4, time=2.0, track="reinvent_base"
+        worker_id="w", pid=12, host="host", policy_version=3, env_steps=100, segments=4, time=2.0, track=DEFAULT_TRACK
     )
     assert Heartbeat.from_json(hb.to_json()) == hb
     for bad in (b'{"worker_id": "w"}', hb.to_json().replace('"pid":12', '"pid":"12"').encode()):

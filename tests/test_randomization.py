@@ -14,12 +14,13 @@ import pytest
 
 import sim  # noqa: F401  (first: picks MuJoCo's GL backend before mujoco is imported)
 from common.action_space import MAX_STEERING_DEG
+from common.defaults import DEFAULT_TRACK
 from sim.camera import CameraSpec, GroundCamera, RenderError
 from sim.env import RacerEnv
 from sim.physics import WHEEL_RADIUS_M
 from sim.texture import DEEPRACER_PALETTE
 
-TRACK = "reinvent_base"
+TRACK = DEFAULT_TRACK
 PIN = {"start_index": 3, "reverse": False}
 """Options that pin the start: the same pose in every episode."""
 SEEDS = range(5)

@@ -20,6 +20,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
 
+from common.defaults import STRAIGHT_TRACK
 from common.keys import Keys
 from common.policy import CheckpointError
 from common.protocol import PolicyVersion
@@ -125,7 +126,7 @@ def test_s3_credentials_never_appear_in_logs_or_models_ls(tmp_path, redis_url, s
     (tmp_path / "hp.json").write_text(json.dumps(FAST_HP))
     args = ["--store", store, "--s3-endpoint", s3_server]
     out = racer(
-        "trainer", "--run-id", "creds", "--track", "Straight_track", "--hyperparams", "hp.json", "--redis", redis_url,
+        "trainer", "--run-id", "creds", "--track", STRAIGHT_TRACK, "--hyperparams", "hp.json", "--redis", redis_url,
         "--time-limit", "3s", "-v", *args, cwd=tmp_path, env=env,
     )  # fmt: skip
     assert out.returncode == 0, out.stderr[-2000:]
@@ -149,7 +150,7 @@ class _Bomb:
 def plant_bomb(store: str, run_id: str, marker: Path) -> None:
     """A run whose checkpoint 0 is a pickle that runs code, with valid metadata and pointers."""
     runs = RunStore(open_store(store))
-    run, files = build_run(run_id, track="Straight_track")
+    run, files = build_run(run_id, track=STRAIGHT_TRACK)
     for name, data in files.items():
         runs.write_file(run_id, name, data)
     runs.write_file(run_id, "config.json", run.model_dump_json())

@@ -16,6 +16,7 @@ import redis
 import torch
 
 from common.bus import Bus
+from common.defaults import STRAIGHT_TRACK
 from common.errors import OptionError
 from common.keys import Keys
 from common.policy import checkpoint_from_bytes, state_dict_from_bytes
@@ -290,7 +291,7 @@ def test_the_cool_down_lowers_the_learning_rate_towards_the_time_limit(redis_url
     0.001 * (0.1 + 0.9 * 25 / 50), times a rollback's scale; with more than 50 s left it is ``lr``."""
     path = tmp_path / "hyperparameters.json"
     path.write_text(json.dumps({"lr": 0.001, "lr_cooldown": 0.5, "lr_final_fraction": 0.1}))
-    run, files = build_run(run_id, track="Straight_track", hyperparams=str(path))
+    run, files = build_run(run_id, track=STRAIGHT_TRACK, hyperparams=str(path))
     trainer = Trainer(run, TrainerOptions(redis_url, str(tmp_path / "store"), time_limit_s=100.0, run_files=files))
     assert trainer.learning_rate() == pytest.approx(0.001)  # not started: no deadline yet
     trainer.deadline = time.monotonic() + 80.0
@@ -304,6 +305,6 @@ def test_the_cool_down_lowers_the_learning_rate_towards_the_time_limit(redis_url
 def test_a_cool_down_without_a_time_limit_is_refused(redis_url, run_id, tmp_path) -> None:
     path = tmp_path / "hyperparameters.json"
     path.write_text(json.dumps({"lr_cooldown": 0.2}))
-    run, files = build_run(run_id, track="Straight_track", hyperparams=str(path))
+    run, files = build_run(run_id, track=STRAIGHT_TRACK, hyperparams=str(path))
     with pytest.raises(OptionError, match=r"hyperparameters.json: lr_cooldown 0.2 needs a time limit"):
         Trainer(run, TrainerOptions(redis_url, str(tmp_path / "store"), run_files=files))

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from common.defaults import DEFAULT_TRACK
 from sim.texture import (
     DEEPRACER_PALETTE,
     Palette,
@@ -16,8 +17,8 @@ from sim.track import load_track
 
 
 @pytest.fixture(scope="module")
-def reinvent():
-    track = load_track("reinvent_base")
+def loop():
+    track = load_track(DEFAULT_TRACK)
     frame = TextureFrame.for_track(track)
     return track, frame, draw_layers(track, frame)
 
@@ -27,17 +28,17 @@ def colour_at(img, frame, xy):
     return tuple(int(c) for c in img[v, u])
 
 
-def test_frame_maps_metres_to_pixels_both_ways(reinvent):
-    track, frame, _ = reinvent
+def test_frame_maps_metres_to_pixels_both_ways(loop):
+    track, frame, _ = loop
     lo, hi = track.bounds
     assert frame.to_pixels(np.array([[frame.x0, frame.y1]]))[0] == pytest.approx([0, 0])
     corner = frame.to_pixels(np.array([[hi[0], lo[1]]]))[0]
     assert 0 < corner[0] < frame.width and 0 < corner[1] < frame.height
-    assert frame.ppm == 200.0
+    assert frame.ppm == 200.0  # the cap: 11.1 × 7.2 m with its margins is under 8192 px and 6 Mpx at 200 px/m
 
 
-def test_layers_sum_to_255_and_colours_land_where_expected(reinvent):
-    track, frame, layers = reinvent
+def test_layers_sum_to_255_and_colours_land_where_expected(loop):
+    track, frame, layers = loop
     assert np.all(layers.astype(int).sum(axis=2) >= 253)  # coverage weights of every pixel sum to ~255
     img = colorize(layers)
     # Between the centre line and a border: road.
@@ -48,8 +49,8 @@ def test_layers_sum_to_255_and_colours_land_where_expected(reinvent):
     assert colour_at(img, frame, track.bounds[0] - 1.0) == pytest.approx(DEEPRACER_PALETTE.background, abs=3)
 
 
-def test_centre_line_is_dashed(reinvent):
-    track, frame, layers = reinvent
+def test_centre_line_is_dashed(loop):
+    track, frame, layers = loop
     s = np.linspace(0, track.length, 400, endpoint=False)
     xy = np.stack([np.interp(s, track.cumulative, track.center[:, i]) for i in (0, 1)], axis=1)
     px = frame.to_pixels(xy).astype(int)
@@ -57,8 +58,8 @@ def test_centre_line_is_dashed(reinvent):
     assert 0.35 < on_dash.mean() < 0.65  # dashes and gaps of equal length
 
 
-def test_palette_recolours_without_redrawing(reinvent):
-    track, frame, layers = reinvent
+def test_palette_recolours_without_redrawing(loop):
+    track, frame, layers = loop
     palette = random_palette(np.random.default_rng(1), 1.0)
     assert palette != DEEPRACER_PALETTE
     img = colorize(layers, palette)
@@ -67,8 +68,8 @@ def test_palette_recolours_without_redrawing(reinvent):
     assert random_palette(np.random.default_rng(1), 0.0) == Palette()
 
 
-def test_road_raster_agrees_with_exact_polygon_test(reinvent):
-    track, frame, _ = reinvent
+def test_road_raster_agrees_with_exact_polygon_test(loop):
+    track, frame, _ = loop
     mask = RoadMask(track, frame)
     rng = np.random.default_rng(0)
     lo, hi = track.bounds
@@ -81,7 +82,7 @@ def test_road_raster_agrees_with_exact_polygon_test(reinvent):
     assert np.array_equal(exact[~near_border], raster[~near_border])
 
 
-def test_road_raster_outside_texture_is_off_road(reinvent):
-    track, frame, _ = reinvent
+def test_road_raster_outside_texture_is_off_road(loop):
+    track, frame, _ = loop
     mask = RoadMask(track, frame)
     assert not mask(np.array([[1e3, 1e3], [-1e3, 0.0]])).any()

@@ -7,6 +7,7 @@ import pytest
 import redis
 import torch
 
+from common.defaults import STRAIGHT_TRACK
 from common.keys import Keys
 from common.policy import bf16_is_fast, checkpoint_from_bytes
 from common.protocol import PolicyVersion
@@ -28,7 +29,7 @@ def hp_file(tmp_path):
 
 
 def start(run_id, redis_url, store, hp_file, **run_updates):
-    run, files = build_run(run_id, track="Straight_track", hyperparams=hp_file)
+    run, files = build_run(run_id, track=STRAIGHT_TRACK, hyperparams=hp_file)
     run = run.model_copy(update={"segment_steps": 16, **run_updates})
     trainer = Trainer(run, TrainerOptions(redis_url, store, run_files=files))
     trainer.start()
@@ -157,7 +158,7 @@ def test_only_the_newest_checkpoint_keeps_the_optimizer_state(redis_url, run_id,
 def test_the_loop_works_with_an_s3_store(redis_url, run_id, s3_server, hp_file, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # TensorBoard files of an S3 run go to ./runs/<id>/tensorboard
     store = f"s3://{S3_BUCKET}/it"
-    run, files = build_run(run_id, track="Straight_track", hyperparams=hp_file)
+    run, files = build_run(run_id, track=STRAIGHT_TRACK, hyperparams=hp_file)
     run = run.model_copy(update={"segment_steps": 16})
     trainer = Trainer(run, TrainerOptions(redis_url, store, s3_endpoint=s3_server, run_files=files))
     trainer.start()
@@ -185,7 +186,7 @@ def test_continuous_actions_and_frame_stacking(redis_url, run_id, tmp_path):
     hp = tmp_path / "hp.json"
     hp.write_text(json.dumps({"batch_size": 32, "num_epochs": 1, "num_episodes_between_training": 2, "stack_size": 2}))
     store = str(tmp_path / "store")
-    run, files = build_run(run_id, track="Straight_track", action_space=str(meta), hyperparams=str(hp))
+    run, files = build_run(run_id, track=STRAIGHT_TRACK, action_space=str(meta), hyperparams=str(hp))
     run = run.model_copy(update={"segment_steps": 16})
     trainer = Trainer(run, TrainerOptions(redis_url, store, run_files=files))
     trainer.start()

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from common.defaults import DEFAULT_TRACK
 from common.race import RaceConfig
 from sim.env import RacerEnv
 from sim.objects import BOT_CAR, BOT_CAR_OBSTACLE, WorldObject
@@ -20,7 +21,7 @@ WIDTH = 800
 
 @pytest.fixture(scope="module")
 def scene():
-    track = load_track("reinvent_base")
+    track = load_track(DEFAULT_TRACK)
     frame = TextureFrame.for_track(track, ppm=80)
     return track, draw_surface(track, frame), frame
 
@@ -101,7 +102,7 @@ def test_without_objects_the_picture_is_as_before(scene):
 
 def test_a_render_of_an_object_avoidance_env_can_show_its_boxes():
     env = RacerEnv(
-        track="reinvent_base",
+        track=DEFAULT_TRACK,
         render_mode="rgb_array",
         race=RaceConfig(race_type="OBJECT_AVOIDANCE", object_avoidance={"number_of_obstacles": 3}),
     )
