@@ -22,7 +22,7 @@ a file for the folder to be recognised, and only ``0-iteration.csv`` is read in 
 ``model/model_metadata.json`` and ``ip/hyperparameters.json`` for metadata; the trainer writes copies of the run's
 files there (``Trainer._write_run_files``), so ``load()`` finds them.
 
-Rows follow DeepRacer's convention (as in its own sim-traces, tests/data/logs): row k is the pose the car was in
+Rows follow DeepRacer's convention (as in its public sim-traces, sim/cars/SOURCES.md): row k is the pose the car was in
 when it chose action k, the reward computed at that pose, and the action chosen there, so the motion from row k to
 row k+1 is caused by the action of row k. The first row of an episode is ``prepare`` (car at rest, steps 1, reward
 0); racer's env step t is DeepRacer's step t+1. No action is chosen at the final pose of an episode, so its row

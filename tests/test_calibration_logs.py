@@ -1,6 +1,9 @@
 """sim.calibration.logs: reading measured logs (DeepRacer sim-traces, RoboMaker logs, plain CSV) into Trajectories.
 
-The real data are small copies in tests/data/logs (see its README.md); bad files are written to tmp_path.
+The format tests run on sim-traces that racer writes here (:func:`synthetic_simtrace`, through
+``common.simtrace.simtrace_row``, DeepRacer's row format); bad files are written to tmp_path. The tests on
+DeepRacer's own logs read the public Gazebo logs in place from ../shared/data (tests/shared_data.py) and skip
+without them.
 """
 
 import csv
@@ -11,22 +14,80 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from common.simtrace import COLUMNS, simtrace_row
 from sim.calibration.logs import (
     DEEPRACER_REFERENCE_POINT_M,
     MAX_STEP_M,
     MIN_ROWS,
     PLAIN_COLUMNS,
+    SIMTRACE_2026_EXTRA,
     LogError,
     Trajectory,
     read_log,
     read_logs,
 )
+from tests.shared_data import shared_data
 
-DATA = Path(__file__).parent / "data" / "logs"
-ROS1 = DATA / "gazebo-ros1-console2022-reinvent_base" / "training-simtrace" / "0-iteration.csv"
-ROS2 = DATA / "gazebo-ros2-simapp6-reInvent2019_wide_cw" / "training-simtrace" / "0-iteration.csv"
-ROS2_STALE = DATA / "gazebo-ros2-simapp6-reInvent2019_wide_cw" / "training-simtrace" / "11-iteration-episode225.csv"
-ROBOMAKER = DATA / "synthetic-robomaker.log"
+ROS1_SET = "gazebo-ros1-console2022-reinvent_base"
+ROS2_SET = "gazebo-ros2-simapp6-reInvent2019_wide_cw"
+STEERS = (-30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0)
+
+
+def synthetic_simtrace(lengths: tuple[int, ...] = (30,) * 15, continuous: bool = False) -> list[str]:
+    """Sim-trace lines (header first) written by racer in DeepRacer's format: episodes of the given numbers of rows,
+    a car driven from rest by a kinematic bicycle (0.164 m wheelbase) at 15 Hz, cycling through DeepRacer's
+    default discrete actions (7 steering angles × 1 or 2 m/s), or with ``continuous`` the 2026 format: the action as
+    ``[steer speed]`` and the columns ``obstacle_crash_counter,wall_clock`` appended. Every episode starts with its
+    ``prepare`` row; the car leaves the track on its last row."""
+    lines = [",".join(COLUMNS + (SIMTRACE_2026_EXTRA if continuous else []))]
+    t = 20.0
+    for episode, n in enumerate(lengths):
+        x, y, yaw = 3.0 + 0.05 * episode, 0.7, 0.0
+        for k in range(n):
+            steer, speed = STEERS[(3 * k + episode) % 7], 1.0 + (k // 4 + episode) % 2
+            index = STEERS.index(steer) + 7 * (speed == 2.0)
+            row = simtrace_row(
+                episode=episode,
+                steps=k + 1,
+                x=x,
+                y=y,
+                yaw_deg=yaw,
+                steer_deg=steer + (0.25 if continuous else 0.0),
+                throttle=speed * (0.9 if continuous else 1.0),
+                action=(steer + 0.25, speed * 0.9) if continuous else index,
+                reward=0.0 if k == 0 else 1.0,
+                done=k == n - 1,
+                all_wheels_on_track=k < n - 1,
+                progress=100.0 * k / 200,
+                closest_waypoint=k // 3,
+                track_len=17.6,
+                tstamp=t,
+                episode_status="prepare" if k == 0 else "off_track" if k == n - 1 else "in_progress",
+            )
+            lines.append(",".join(row + (["0", repr(round(1.7e9 + t, 3))] if continuous else [])))
+            dt = 1 / 15  # the action of this row drives the car to the next one
+            x += speed * dt * math.cos(math.radians(yaw))
+            y += speed * dt * math.sin(math.radians(yaw))
+            yaw = (yaw + math.degrees(speed * dt * math.tan(math.radians(0.5 * steer)) / 0.164) + 180.0) % 360.0 - 180.0
+            t += dt
+        t += 1.5
+    return lines
+
+
+def robomaker_log(lines: list[str]) -> str:
+    """A RoboMaker log holding the sim-trace rows (no header) as ``SIM_TRACE_LOG:`` lines between other lines."""
+    out = ["Executing simulation-entrypoint.sh script", "[RL] Agent init successful", "Created agent: agent"]
+    for line in lines[1:]:
+        if line.split(",")[1] == "1.0":
+            out += ["Reset agent", "Reset agent finished"]
+        out.append(f"SIM_TRACE_LOG:{line}")
+    return "\n".join([*out, "Training> Name=main_level/agent, Worker=0, Episode=3, Total reward=12.0"]) + "\n"
+
+
+def write_lines(path: Path, lines: list[str]) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    return path
 
 
 def csv_episodes(path: Path) -> dict[int, list[dict[str, str]]]:
@@ -47,92 +108,166 @@ def assert_matches_rows(traj: Trajectory, rows: list[dict[str, str]]) -> None:
         np.testing.assert_array_equal(getattr(traj, mine), [float(r[col]) for r in rows])
 
 
-# ------------------------------------------------------------------------------------------ real DeepRacer data
+def stale_first(rows: list[dict[str, str]]) -> bool:
+    """Whether an episode's first pose is more than MAX_STEP_M from its second (read independently)."""
+    (a, b) = rows[:2]
+    return math.hypot(float(b["X"]) - float(a["X"]), float(b["Y"]) - float(a["Y"])) > MAX_STEP_M
 
 
-def test_ros1_simtrace_csv():
-    rows = csv_episodes(ROS1)
-    trajs = read_log(ROS1)
-    usable = [e for e, r in rows.items() if len(r) >= MIN_ROWS]
-    assert len(rows) == 15 and usable == list(range(14))  # episode 14 has 15 rows: skipped
-    assert [t.episode for t in trajs] == usable
+# ------------------------------------------------------------------------------------------ sim-traces
+
+
+def test_simtrace_csv(tmp_path):
+    path = write_lines(tmp_path / "0-iteration.csv", synthetic_simtrace((30, 20, 15, 18)))
+    rows = csv_episodes(path)
+    trajs = read_log(path)
+    assert [t.episode for t in trajs] == [0, 1, 3]  # episode 2 has 15 rows (< MIN_ROWS): skipped
     for traj in trajs:
         assert_matches_rows(traj, rows[traj.episode])
         assert np.all(np.diff(traj.t) > 0)
         assert traj.reference_point_m == DEEPRACER_REFERENCE_POINT_M
-        assert traj.track == "reinvent_base" and traj.source == str(ROS1)
-        assert set(traj.steer_cmd_deg.round(6)) <= {-30, -20, -10, 0, 10, 20, 30}
-        assert set(traj.speed_cmd_mps) <= {1.0, 2.0}
-    first = trajs[0]  # the prepare row is sample 0: the car at rest with the first action
-    assert (first.t[0], first.steer_cmd_deg[0], first.speed_cmd_mps[0]) == (20.202, 20.0, 2.0)
-    assert (first.x[0], first.y[0]) == (3.1998969552234997, 0.6831242627772308)
-    assert first.heading_deg[0] == 0.18796826230461333
-    assert (first.t[1], first.steer_cmd_deg[1], first.speed_cmd_mps[1]) == (20.269, -20.0, 1.0)
-    assert len(first) == 35
+        assert traj.track is None and traj.source == str(path)
+        assert set(traj.steer_cmd_deg) <= set(STEERS) and set(traj.speed_cmd_mps) <= {1.0, 2.0}
+    first, prepare = trajs[0], rows[0][0]  # the prepare row is sample 0: the car at rest with the first action
+    assert prepare["episode_status"] == "prepare" and len(first) == 30
+    assert (first.t[0], first.steer_cmd_deg[0], first.x[0]) == (20.0, float(prepare["steer"]), 3.0)
 
 
-def test_ros2_simtrace_csv_with_2026_columns():
-    rows = csv_episodes(ROS2)
-    assert "wall_clock" in next(iter(rows.values()))[0]
-    trajs = read_log(ROS2)
-    assert [len(r) for r in rows.values()] == [23, 18, 17, 18, 22, 10, 14, 22, 29, 18, 17, 28]
-    assert [t.episode for t in trajs] == [0, 1, 2, 3, 4, 7, 8, 9, 10, 11]  # 5 and 6 are shorter than 16 rows
+def test_simtrace_csv_with_2026_columns(tmp_path):
+    path = write_lines(tmp_path / "0-iteration.csv", synthetic_simtrace((23, 10, 17), continuous=True))
+    rows = csv_episodes(path)
+    assert "wall_clock" in rows[0][0] and rows[0][0]["action"] == "[-29.75 0.9]"
+    trajs = read_log(path)
+    assert [t.episode for t in trajs] == [0, 2]  # episode 1 is shorter than 16 rows
     for traj in trajs:
         assert_matches_rows(traj, rows[traj.episode])
-        assert traj.track == "reInvent2019_wide"
         # continuous actions: the "[steer speed]" action column repeats steer and throttle
         action = np.array([r["action"].strip("[]").split() for r in rows[traj.episode]], dtype=float)
         np.testing.assert_allclose(action, np.c_[traj.steer_cmd_deg, traj.speed_cmd_mps])
-    first = trajs[0]
-    assert (first.t[0], first.steer_cmd_deg[0], first.speed_cmd_mps[0]) == (36.16, -25.0, 1.3310375874989868)
-    assert (first.x[0], first.heading_deg[0]) == (-1.4431938671641407, 179.0009435200481)
 
 
-def test_stale_prepare_pose_is_dropped(caplog):
-    rows = csv_episodes(ROS2_STALE)[225]
-    assert rows[0]["episode_status"] == "prepare"
+@pytest.mark.parametrize(
+    ("folder", "track"),
+    [
+        (ROS1_SET, "reinvent_base"),
+        (ROS2_SET, "reInvent2019_wide_cw"),  # the longest name in the path: the clockwise route DeepRacer drove
+        ("my-racer_loop_cw-laps", "racer_loop_cw"),
+        ("laps", None),
+    ],
+    ids=["deepracer", "longest", "racer", "none"],
+)
+def test_track_from_the_path(tmp_path, folder, track):
+    path = write_lines(tmp_path / folder / "training-simtrace" / "0-iteration.csv", synthetic_simtrace((20,)))
+    assert read_log(path)[0].track == track
+    assert read_log(path, track="Oval_track")[0].track == "Oval_track"  # unless told
+
+
+def test_stale_prepare_pose_is_dropped(tmp_path, caplog):
+    lines = synthetic_simtrace((20, 25))
+    k = next(i for i, line in enumerate(lines) if line.startswith("1,1.0,"))  # episode 1's prepare row ...
+    fields = lines[k].split(",")
+    fields[2] = repr(float(fields[2]) + 3.5)  # ... still holding the previous episode's end pose, 3.5 m away
+    lines[k] = ",".join(fields)
+    path = write_lines(tmp_path / "stale.csv", lines)
+    rows = csv_episodes(path)[1]
     with caplog.at_level(logging.WARNING, logger="sim.calibration.logs"):
-        (traj,) = read_log(ROS2_STALE)
-    assert_matches_rows(traj, rows[1:])  # the prepare row still held the previous episode's end pose
-    assert "episode 225" in caplog.text and "stale" in caplog.text
+        traj = read_log(path)[1]
+    assert_matches_rows(traj, rows[1:])
+    assert "episode 1" in caplog.text and "stale" in caplog.text
 
 
-def test_robomaker_log_reads_like_the_csv():
-    from_log = read_log(ROBOMAKER)
-    from_csv = read_log(ROS1)[:3]
+def test_robomaker_log_reads_like_the_csv(tmp_path):
+    lines = synthetic_simtrace((30, 20, 25, 12))
+    log = tmp_path / "robomaker.log"
+    log.write_text(robomaker_log(lines))
+    from_log, from_csv = read_log(log), read_log(write_lines(tmp_path / "0-iteration.csv", lines))
     assert [t.episode for t in from_log] == [0, 1, 2]
     for a, b in zip(from_log, from_csv, strict=True):
         for name in ("t", "steer_cmd_deg", "speed_cmd_mps", "x", "y", "heading_deg"):
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
         assert a.reference_point_m == 0.14
     assert from_log[0].track is None  # its path names no track ...
-    assert read_log(ROBOMAKER, track="reinvent_base")[0].track == "reinvent_base"  # ... unless told
+    assert read_log(log, track="reinvent_base")[0].track == "reinvent_base"  # ... unless told
 
 
 def test_robomaker_log_2026_rows_after_a_timestamp(tmp_path):
-    lines = ROS2.read_text().splitlines()[1:]
-    text = ["starting", *(f"2026-03-11T08:00:{i % 60:02d}Z SIM_TRACE_LOG:{line}" for i, line in enumerate(lines))]
+    lines = synthetic_simtrace((23, 18, 10, 20), continuous=True)
+    text = ["starting", *(f"2026-03-11T08:00:{i % 60:02d}Z SIM_TRACE_LOG:{line}" for i, line in enumerate(lines[1:]))]
     path = tmp_path / "ros2-robomaker.log"
     path.write_text("\n".join(text) + "\nbye\n")
-    got, want = read_log(path), read_log(ROS2)
-    assert [len(t) for t in got] == [len(t) for t in want]
+    got, want = read_log(path), read_log(write_lines(tmp_path / "0-iteration.csv", lines))
+    assert [len(t) for t in got] == [len(t) for t in want] == [23, 18, 20]
     np.testing.assert_array_equal(got[-1].speed_cmd_mps, want[-1].speed_cmd_mps)
 
 
-def test_read_logs_on_folders_and_files():
-    trajs = read_logs(DATA)
-    assert len(trajs) == 14 + 10 + 1 + 3
-    assert trajs[0].source == str(ROS1) and trajs[-1].source == str(ROBOMAKER)
-    assert [t.episode for t in read_logs(str(ROS1))] == list(range(14))
-    assert len(read_logs([ROS1, ROBOMAKER])) == 17
+def test_read_logs_on_folders_and_files(tmp_path):
+    ros1 = write_lines(tmp_path / "a" / "training-simtrace" / "0-iteration.csv", synthetic_simtrace((20,) * 14))
+    write_lines(tmp_path / "b" / "training-simtrace" / "0-iteration.csv", synthetic_simtrace((20,) * 10, True))
+    robomaker = tmp_path / "robomaker.log"
+    robomaker.write_text(robomaker_log(synthetic_simtrace((20,) * 3)))
+    trajs = read_logs(tmp_path)
+    assert len(trajs) == 14 + 10 + 3
+    assert trajs[0].source == str(ros1) and trajs[-1].source == str(robomaker)
+    assert [t.episode for t in read_logs(str(ros1))] == list(range(14))
+    assert len(read_logs([ros1, robomaker])) == 17
     assert read_logs([]) == []
 
 
 def test_natural_order_of_iterations(tmp_path):
     for n in (10, 2):
-        text = ROS1.read_text().splitlines()
-        (tmp_path / f"{n}-iteration.csv").write_text("\n".join(text[:40]))
+        write_lines(tmp_path / f"{n}-iteration.csv", synthetic_simtrace()[:40])
     assert [Path(t.source).name for t in read_logs(tmp_path)] == ["2-iteration.csv", "10-iteration.csv"]
+
+
+# ------------------------------------------------------------------------------------------ DeepRacer's own logs
+
+
+def test_deepracer_ros1_simtrace_csv():
+    path = shared_data("logs", ROS1_SET, "training-simtrace", "0-iteration.csv")
+    rows = csv_episodes(path)
+    trajs = read_log(path)
+    assert [t.episode for t in trajs] == [e for e, r in rows.items() if len(r) >= MIN_ROWS]
+    for traj in trajs:
+        assert_matches_rows(traj, rows[traj.episode])
+        assert np.all(np.diff(traj.t) > 0)
+        assert traj.reference_point_m == DEEPRACER_REFERENCE_POINT_M
+        assert traj.track == "reinvent_base" and traj.source == str(path)
+        assert set(traj.steer_cmd_deg.round(6)) <= set(STEERS)
+        assert set(traj.speed_cmd_mps) <= {1.0, 2.0}
+        prepare = rows[traj.episode][0]  # the prepare row is sample 0: the car at rest with the first action
+        assert prepare["episode_status"] == "prepare" and traj.t[0] == float(prepare["tstamp"])
+
+
+def test_deepracer_ros2_simtrace_csv_with_2026_columns():
+    path = shared_data("logs", ROS2_SET, "training-simtrace", "0-iteration.csv")
+    rows = csv_episodes(path)
+    assert "wall_clock" in next(iter(rows.values()))[0]
+    kept = {e: r[1:] if stale_first(r) else r for e, r in rows.items()}
+    trajs = read_log(path)
+    assert [t.episode for t in trajs] == [e for e, r in kept.items() if len(r) >= MIN_ROWS]
+    for traj in trajs:
+        assert_matches_rows(traj, kept[traj.episode])
+        assert traj.track == "reInvent2019_wide_cw"
+        action = np.array([r["action"].strip("[]").split() for r in kept[traj.episode]], dtype=float)
+        np.testing.assert_allclose(action, np.c_[traj.steer_cmd_deg, traj.speed_cmd_mps])
+
+
+def test_deepracer_stale_prepare_pose_is_dropped(caplog):
+    path = shared_data("logs", ROS2_SET, "training-simtrace", "11-iteration.csv")
+    rows = csv_episodes(path)[225]
+    assert rows[0]["episode_status"] == "prepare" and stale_first(rows)
+    with caplog.at_level(logging.WARNING, logger="sim.calibration.logs"):
+        (traj,) = [t for t in read_log(path) if t.episode == 225]
+    assert_matches_rows(traj, rows[1:])  # the prepare row still held the previous episode's end pose
+    assert "episode 225" in caplog.text and "stale" in caplog.text
+
+
+def test_deepracer_log_sets_read_whole():
+    folder = shared_data("logs", ROS1_SET)
+    trajs = read_logs(folder)
+    files = list(dict.fromkeys(Path(t.source).name for t in trajs))
+    assert files == [f"{n}-iteration.csv" for n in range(28)]  # natural order: 2 before 10
+    assert all(t.track == "reinvent_base" for t in trajs) and len(trajs) > 500
 
 
 # ------------------------------------------------------------------------------------------ plain CSV
@@ -196,12 +331,8 @@ def assert_log_error(path, *problem: str, reader=read_log) -> None:
 
 
 def ros1_lines() -> list[str]:
-    return ROS1.read_text().splitlines()
-
-
-def write_lines(path: Path, lines: list[str]) -> Path:
-    path.write_text("\n".join(lines) + "\n")
-    return path
+    """15 episodes of 30 rows: line 41 of the file is in episode 1."""
+    return synthetic_simtrace()
 
 
 def set_field(line: str, index: int, value: str) -> str:
@@ -316,14 +447,15 @@ def test_bad_reference_point(tmp_path):
 
 
 def test_robomaker_line_with_wrong_field_count(tmp_path):
-    lines = ROBOMAKER.read_text().splitlines()
+    lines = robomaker_log(synthetic_simtrace((20,) * 3)).splitlines()
     k = next(i for i, line in enumerate(lines) if line.startswith("SIM_TRACE_LOG:"))
     lines[k] = lines[k].rsplit(",", 2)[0]
     assert_log_error(write_lines(tmp_path / "x.log", lines), f"line {k + 1}:", "SIM_TRACE_LOG has 15 fields")
 
 
 def test_action_lists_split_at_commas_are_rejoined(tmp_path):
-    lines = ROS2.read_text().splitlines()
+    ros2 = write_lines(tmp_path / "0-iteration.csv", synthetic_simtrace((20, 17), continuous=True))
+    lines = ros2.read_text().splitlines()
     lines = [lines[0], *(line.replace(" ", ", ", 1) if "[" in line else line for line in lines[1:])]
-    assert "[-25.0, 1.33" in lines[1]
-    assert [len(t) for t in read_log(write_lines(tmp_path / "c.csv", lines))] == [len(t) for t in read_log(ROS2)]
+    assert "[-29.75, 0.9]" in lines[1]
+    assert [len(t) for t in read_log(write_lines(tmp_path / "c.csv", lines))] == [len(t) for t in read_log(ros2)]

@@ -59,7 +59,6 @@ import logging
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -126,7 +125,7 @@ class Trajectory:
     reference_point_m: float = 0.0
     """Distance of the measured point ahead of base_link, m (0.14 for DeepRacer logs)."""
     track: str | None = None
-    """The track driven, when known (a bundled track name)."""
+    """The track driven, when known (a track name racer knows: ``sim.track.known_track_names``)."""
     speed_measured_mps: np.ndarray = field(init=False)
     """Speed of the reference point estimated from x, y and t, m/s (>= 0)."""
 
@@ -177,7 +176,7 @@ class _Table:
 def read_log(path: str | Path, track: str | None = None) -> list[Trajectory]:
     """Read one log file (sim-trace CSV, RoboMaker log or plain CSV) into a Trajectory per usable episode.
 
-    ``track`` names the track driven; without it, a ``# track:`` comment (plain CSV) or else a bundled
+    ``track`` names the track driven; without it, a ``# track:`` comment (plain CSV) or else a known
     track name found in the file's path (e.g. ``.../gazebo-ros1-console2022-reinvent_base/...``) is used.
     """
     path = Path(path)
@@ -234,16 +233,12 @@ def _read_text(path: Path) -> str:
     return text
 
 
-@cache
-def _bundled_tracks() -> tuple[str, ...]:
-    from sim.track import bundled_track_names
-
-    return tuple(bundled_track_names())
-
-
 def _track_from_path(path: Path) -> str | None:
-    """The longest bundled track name that appears in the path (DeepRacer logs do not name their track)."""
-    found = [name for name in _bundled_tracks() if name in str(path.absolute())]
+    """The longest track name racer knows (``sim.track.known_track_names``: its own, the cached DeepRacer tracks
+    and those that can be pulled) that appears in the path (DeepRacer logs do not name their track)."""
+    from sim.track import known_track_names
+
+    found = [name for name in known_track_names() if name in str(path.absolute())]
     return max(found, key=len) if found else None
 
 
