@@ -7,6 +7,7 @@ import csv
 import json
 import subprocess
 import sys
+from collections import Counter
 from pathlib import Path
 from unittest import mock
 
@@ -19,6 +20,7 @@ import torch
 from common.action_space import ActionSpace
 from common.car_calibration import CarCalibration
 from common.config import EnvConfig
+from common.defaults import DEFAULT_TRACK
 from common.framestack import FrameStack
 from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_to_bytes, load_policy
 from common.sensors import lidar_from_ranges, observation_spec
@@ -52,7 +54,7 @@ def make_run(
         (tmp / "space.json").write_text(json.dumps(action_space))
         space = str(tmp / "space.json")
     (tmp / "hp.json").write_text(json.dumps({"stack_size": stack_size, "greedy_action": greedy}))
-    run, files = build_run(run_id, track="reinvent_base", action_space=space, hyperparams=str(tmp / "hp.json"))
+    run, files = build_run(run_id, track=DEFAULT_TRACK, action_space=space, hyperparams=str(tmp / "hp.json"))
     runs = RunStore(open_store(str(tmp / "store")))
     for name, data in files.items():
         runs.write_file(run_id, name, data)
@@ -74,7 +76,7 @@ def stored_policy(runs: RunStore, run_id: str) -> ActorCritic:
 
 def sim_frames(n: int, seed: int = 0) -> list[np.ndarray]:
     """Camera frames (120, 160, 1) from our simulator, driving straight-ish from a few starts."""
-    env = RacerEnv(config=EnvConfig(track="reinvent_base"))
+    env = RacerEnv(config=EnvConfig(track=DEFAULT_TRACK))
     frames, _ = [], None
     obs, _ = env.reset(seed=seed)
     for i in range(n):
@@ -143,7 +145,7 @@ def test_the_runtime_builds_the_same_tensor_as_training_from_the_same_frame():
 def test_the_mujoco_camera_path_matches_too():
     """With the MuJoCo camera the env converts an RGB render with OpenCV; the runtime converts the camera's BGR."""
     try:
-        env = RacerEnv(config=EnvConfig(track="reinvent_base", camera="mujoco"))
+        env = RacerEnv(config=EnvConfig(track=DEFAULT_TRACK, camera="mujoco"))
         obs, _ = env.reset(seed=1)
         rgb = env.camera.render(env.physics.pose, color=True)
     except Exception as exc:  # no OpenGL context on this machine or in this process
@@ -188,7 +190,7 @@ def test_vehicle_calibration_maps_actions_to_hand_computed_outputs(tmp_path):
 def record_sim_video(runs: RunStore, path: Path, steps: int) -> list[int]:
     """Drive our simulator greedily with the torch policy, record its camera losslessly (FFV1), return the actions."""
     model = stored_policy(runs, "car")
-    env = RacerEnv(config=EnvConfig(track="reinvent_base"))
+    env = RacerEnv(config=EnvConfig(track=DEFAULT_TRACK))
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 15, (160, 120), isColor=False)
     assert writer.isOpened(), "OpenCV's FFV1 (lossless) encoder should be available"
     obs, _ = env.reset(seed=5)
@@ -210,7 +212,12 @@ def test_the_runtime_on_a_sim_video_commands_what_the_policy_chose(tmp_path):
     model = tmp_path / "model.onnx"
     export_onnx(runs, "car", "latest", model)
     actions = record_sim_video(runs, tmp_path / "drive.avi", 90)
-    assert len(set(actions)) >= 3, actions  # the policy really steers differently along the way
+    # The policy really steers differently along the way: at least two actions, each for several frames. (This asked
+    # for 3 actions on reinvent_base, which the seeded network reached by one frame of a third; on racer_loop, with
+    # reset seed 5, it chooses actions 2 and 3 only. Over reset seeds 0-7, on either track, the second most chosen
+    # action takes 10-21 of the 90 frames and any other at most 2.)
+    counts = sorted(Counter(actions).values())
+    assert len(counts) >= 2 and counts[-2] >= 5, actions
     vehicle = {"steering": {"center": 1450, "left": 1850, "right": 1000}, "throttle": {"max_speed_pct": 80}}
     (tmp_path / "vehicle.json").write_text(json.dumps(vehicle))
     out = subprocess.run(
@@ -258,7 +265,7 @@ def make_sensor_run(tmp: Path, run_id: str, sensors: list[str], stack_size: int 
     """``make_run`` for another sensor list: the run's model_metadata.json names the sensors, and its checkpoint is a
     seeded network for them with a scaled-up head (choices that differ clearly from input to input)."""
     (tmp / "hp.json").write_text(json.dumps({"stack_size": stack_size}))
-    run, files = build_run(run_id, track="reinvent_base", hyperparams=str(tmp / "hp.json"))
+    run, files = build_run(run_id, track=DEFAULT_TRACK, hyperparams=str(tmp / "hp.json"))
     actions = ActionSpace.model_validate_json(files["model_metadata.json"]).model_copy(update={"sensor": sensors})
     files["model_metadata.json"] = actions.to_json().encode()
     runs = RunStore(open_store(str(tmp / "store")))

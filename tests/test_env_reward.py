@@ -6,6 +6,7 @@ import textwrap
 import pytest
 
 from common.config import EnvConfig
+from common.defaults import DEFAULT_TRACK
 from sim.env import RacerEnv, preflight_reward
 from sim.reward import RewardFunctionError, example_path
 
@@ -18,7 +19,7 @@ def write(tmp_path, name, body):
 
 @pytest.mark.parametrize("example", ["follow_center_line", "stay_inside_two_borders", "prevent_zig_zag"])
 def test_examples_run_in_env_and_match_params(example):
-    env = RacerEnv(track="reinvent_base", reward_fn=str(example_path(example)))
+    env = RacerEnv(track=DEFAULT_TRACK, reward_fn=str(example_path(example)))
     env.reset(seed=3)
     for _ in range(5):
         _, reward, term, _, info = env.step(5)  # (0°, 1 m/s): straight ahead
@@ -43,7 +44,7 @@ def test_user_reward_sees_every_key_and_its_values(tmp_path):
             return float(params["speed"]) + params["steering_angle"] / 100.0
         """,
     )
-    env = RacerEnv(track="reinvent_base", reward_fn=str(path))
+    env = RacerEnv(track=DEFAULT_TRACK, reward_fn=str(path))
     env.reset(seed=0)
     command = env.actions.command(7)
     _, reward, *_ = env.step(7)
@@ -61,7 +62,7 @@ def test_raising_reward_function_names_file_and_step(tmp_path):
             return 1.0
         """,
     )
-    env = RacerEnv(track="reinvent_base", reward_fn=str(path), randomization={"random_start": False})
+    env = RacerEnv(track=DEFAULT_TRACK, reward_fn=str(path), randomization={"random_start": False})
     env.reset(seed=0)
     env.step(5)  # DeepRacer's steps 2: step 1 is the prepare step
     with pytest.raises(RewardFunctionError, match=r"bad_reward\.py.*step 3.*KeyError"):
@@ -80,16 +81,16 @@ def test_raising_reward_function_names_file_and_step(tmp_path):
 def test_broken_reward_file_fails_before_the_first_episode(tmp_path, body, match):
     path = write(tmp_path, "r.py", body)
     with pytest.raises(RewardFunctionError, match=f"(?i)r\\.py.*({match})"):
-        preflight_reward(EnvConfig(track="reinvent_base", reward_fn=str(path)))
+        preflight_reward(EnvConfig(track=DEFAULT_TRACK, reward_fn=str(path)))
 
 
 def test_missing_reward_file_is_refused():
     with pytest.raises(RewardFunctionError, match="nope_reward.py"):
-        RacerEnv(track="reinvent_base", reward_fn="/nonexistent/nope_reward.py")
+        RacerEnv(track=DEFAULT_TRACK, reward_fn="/nonexistent/nope_reward.py")
 
 
 def test_reward_is_finite_over_an_episode():
-    env = RacerEnv(track="Spain_track")
+    env = RacerEnv(track="racer_loop_cw")
     env.reset(seed=1)
     done = False
     while not done:

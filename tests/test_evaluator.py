@@ -4,6 +4,7 @@ import json
 
 import pytest
 
+from common.defaults import DEFAULT_TRACK, STRAIGHT_TRACK
 from model_store import LocalStore, RunStore
 from racer.launcher import robust_streak
 from racer.runconfig import build_run
@@ -18,7 +19,7 @@ from trainer.evaluator import (
 
 
 def trial(progress, status, lap=None, reverse=False):
-    return Trial("reinvent_base", reverse, 0, progress, status, 10, lap, [[0.0, 0.0, 1.0]])
+    return Trial(DEFAULT_TRACK, reverse, 0, progress, status, 10, lap, [[0.0, 0.0, 1.0]])
 
 
 def test_score_ranks_completion_then_progress_then_lap_time():
@@ -87,7 +88,7 @@ def test_a_real_checkpoint_is_evaluated_from_spread_starts_in_both_directions(tm
     from model_store.localize import localize_env
     from sim.env import RacerEnv
 
-    run, files = build_run("ev", track="reinvent_base")
+    run, files = build_run("ev", track=DEFAULT_TRACK)
     runs = RunStore(LocalStore(tmp_path / "store"))
     for name, data in files.items():
         runs.write_file("ev", name, data)
@@ -99,7 +100,9 @@ def test_a_real_checkpoint_is_evaluated_from_spread_starts_in_both_directions(tm
     record = evaluate_checkpoint(runs, run, env_cfg, "latest", settings)
     assert record["episodes"] == 4 and len(record["trials"]) == 4
     starts = {(t["reverse"], t["start_index"]) for t in record["trials"]}
-    assert starts == {(False, 0), (False, 59), (True, 0), (True, 59)}
+    # Two starts spread over the loop's 117 distinct waypoints (racer_loop's 118 rows repeat the first as the
+    # last): round(i * 117 / 2) for i = 0, 1, and Python rounds 58.5 to the even 58.
+    assert starts == {(False, 0), (False, 58), (True, 0), (True, 58)}
     assert all(len(t["trajectory"]) == t["steps"] for t in record["trials"])
     assert 0 <= record["mean_progress"] <= 100 and record["version"] == 0
     again = evaluate_checkpoint(runs, run, env_cfg, 0, settings)
@@ -114,8 +117,8 @@ def test_racer_eval_cli_prints_writes_json_and_video(tmp_path):
     from racer.cli import app
     from sim.env import RacerEnv
 
-    run, _, runs = _stored_run(tmp_path, "cli-ev", track="reinvent_base")
-    actions = RacerEnv(track="reinvent_base").actions
+    run, _, runs = _stored_run(tmp_path, "cli-ev", track=DEFAULT_TRACK)
+    actions = RacerEnv(track=DEFAULT_TRACK).actions
     model = build_policy((120, 160, 1), action_space_spec(actions), run.policy)
     runs.save_checkpoint("cli-ev", 3, checkpoint_to_bytes(model.state_dict()), {"env_steps": 300})
     out, video = tmp_path / "eval.json", tmp_path / "eval.mp4"
@@ -159,7 +162,7 @@ def test_evaluation_sim_trace_is_read_by_deepracer_utils(tmp_path):
     from model_store.runs import evaluation_stamp, simtrace_key
     from sim.env import RacerEnv
 
-    run, files = build_run("evtrace", track="reinvent_base")
+    run, files = build_run("evtrace", track=DEFAULT_TRACK)
     runs = RunStore(LocalStore(tmp_path))
     for name, data in files.items():
         runs.write_file("evtrace", name, data)
@@ -193,7 +196,7 @@ def test_lockstep_evaluation_drives_each_trial_as_run_trial_does():
     from sim.env import RacerEnv
     from trainer.evaluator import evaluate, run_trial
 
-    run, _ = build_run("lock", track="reinvent_base")
+    run, _ = build_run("lock", track=DEFAULT_TRACK)
     env = RacerEnv(config=run.env)
     torch.manual_seed(5)
     model = build_policy((120, 160, 1), action_space_spec(env.actions), run.policy)
@@ -238,7 +241,7 @@ def test_the_evaluator_rides_out_a_short_redis_outage_and_ends_on_a_longer_one(t
     from tests.faults import wait_for
     from trainer.evaluator import EvaluatorOptions, run_evaluator
 
-    run, files = build_run("ev-outage", track="Straight_track")
+    run, files = build_run("ev-outage", track=STRAIGHT_TRACK)
     runs = RunStore(LocalStore(tmp_path))
     for name, data in files.items():
         runs.write_file(run.run_id, name, data)
@@ -331,7 +334,7 @@ def test_racer_eval_refuses_greedy_action_expected_for_a_discrete_run_in_one_lin
 
     from racer.cli import app
 
-    _stored_run(tmp_path, "d", track="reinvent_base")
+    _stored_run(tmp_path, "d", track=DEFAULT_TRACK)
     args = ["eval", "--run-id", "d", "--store", str(tmp_path), "--greedy-action", "expected"]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 2 and "--greedy-action expected: run 'd' has a discrete action space" in result.output

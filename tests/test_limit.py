@@ -14,13 +14,16 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from shapely.geometry import MultiPoint
 
 from common.car_calibration import CalibrationError, load_car
+from common.defaults import DEFAULT_TRACK, STRAIGHT_TRACK
 from sim.car_limits import CarLimits, measure_limits
 from sim.follower import CORRIDOR_TRIES, PACE_STEP
 from sim.physics import WHEELBASE_M
 from sim.raceline import _curvature, corridor, racing_line, speed_profile
 from sim.track import load_track
+from tests.shared_data import needs_deepracer_tracks
 
 
 @pytest.fixture(scope="module")
@@ -158,18 +161,21 @@ def test_the_gazebo_cars_line_uses_the_track() -> None:
     controller's driven lap beat that 'limit' by 9 %. The line must use the corridor and be clearly faster than
     the centre line, and no point may be tighter than the car can turn at any speed."""
     lim = measure_limits(load_car("deepracer-gazebo"))
-    track = load_track("reinvent_base")
+    track = load_track(DEFAULT_TRACK)
     line = racing_line(track, lim)
     cor = corridor(track)
     ds = np.linalg.norm(np.roll(cor.center, -1, axis=0) - cor.center, axis=1)
     _, centre_lap = speed_profile(ds, _curvature(cor.center), lim)
     assert np.max(np.abs(line.offsets)) > 0.3
-    assert line.lap_time < 0.9 * centre_lap
+    # racer_loop's bends are gentler than reinvent_base's, where this asked for 0.9. On racer_loop the line takes 7 %
+    # off the centre line's lap, a line kept within 7 cm of the centre (the bug) 2.7 % (measured with racing_line on
+    # a corridor narrowed to 7 cm; on reinvent_base 10.3 %, just under the old bound): 0.95 lies between.
+    assert line.lap_time < 0.95 * centre_lap
     assert np.max(np.abs(line.curvature)) <= max(lim.max_curvature) * 1.02
 
 
 def test_the_racing_line_stays_in_the_corridor_and_beats_the_centre_line(limits: CarLimits) -> None:
-    track = load_track("reinvent_base")
+    track = load_track(DEFAULT_TRACK)
     line = racing_line(track, limits)
     cor = corridor(track)
     assert line.offsets[0] == 0.0  # starts where the env puts the car
@@ -181,10 +187,19 @@ def test_the_racing_line_stays_in_the_corridor_and_beats_the_centre_line(limits:
     assert line.length < track.length  # it cuts the corners
 
 
-def test_racer_limit_drives_its_limit_within_5_percent(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    "track",
+    [
+        DEFAULT_TRACK,
+        # A DeepRacer track by name, read from the track folder (RACER_TRACKS_DIR: the shared routes here, what
+        # `racer tracks pull` fills on a user's machine).
+        pytest.param("reInvent2019_track", marks=needs_deepracer_tracks),
+    ],
+)
+def test_racer_limit_drives_its_limit_within_5_percent(tmp_path: Path, track: str) -> None:
     out, png, cache = tmp_path / "limit.json", tmp_path / "limit.png", tmp_path / "cache"
     done = subprocess.run(
-        [sys.executable, "-m", "racer", "limit", "reinvent_base", "--json", str(out), "--png", str(png)],
+        [sys.executable, "-m", "racer", "limit", track, "--json", str(out), "--png", str(png)],
         capture_output=True,
         text=True,
         timeout=300,
@@ -202,7 +217,11 @@ def test_racer_limit_drives_its_limit_within_5_percent(tmp_path: Path) -> None:
     # controller's lap, which cuts the line a little where the corridor allows, may come in just under it.
     assert 0.95 <= report["driven_lap_time_s"] / report["lap_time_s"] <= 1.05
     assert report["best_known_lap_s"] == min(report["lap_time_s"], report["driven_lap_time_s"])
-    assert 15.0 < report["line_length_m"] < 17.71  # shorter than the centre line
+    # Shorter than the centre line (racer_loop 17.60 m, reInvent2019_track 23.12 m), and no shorter than the convex
+    # hull of the inner border, which any lap round the inside of the track encloses.
+    route = load_track(track)
+    inner_hull = MultiPoint(route.waypoints[:, 2:4]).convex_hull.length
+    assert inner_hull < report["line_length_m"] < route.length
     assert {"speeds", "accel", "brake", "max_curvature", "top_speed"} <= set(report["car_limits"])
     # Its speed (under 30 s a track on one core) is measured with `racer limit` itself (docs/racing.md), not timed
     # here, where a shared machine makes seconds noise: the report only has to say what each part took.
@@ -217,8 +236,8 @@ def test_racer_limit_drives_its_limit_within_5_percent(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("args", "fragment"),
     [
-        (["Straight_track"], "not a loop"),
-        (["reinvent_base", "--car", "no-such-car"], "car 'no-such-car' is neither a preset"),
+        ([STRAIGHT_TRACK], "not a loop"),
+        ([DEFAULT_TRACK, "--car", "no-such-car"], "car 'no-such-car' is neither a preset"),
         (["nowhere"], "unknown track 'nowhere'"),
     ],
 )
@@ -270,6 +289,7 @@ def test_the_steering_time_constant_is_measured_from_the_car() -> None:
     assert 0.3 < gazebo.min_turn_radius < 1.0  # the lagging car still has a finite full-lock radius
 
 
+@needs_deepracer_tracks  # the figures below were measured on reInvent2019_track (docs/racing.md)
 def test_the_follower_drives_the_gazebo_cars_lagging_steering_round_its_limit() -> None:
     """Pure pursuit left the track with this car at any look-ahead; the predictive follower must finish the lap
     close to the limit. Measured: 1.039 at the first try, on an AMD EPYC. The lap is chaotic at the limit (the limit
@@ -286,12 +306,23 @@ def test_the_follower_drives_the_gazebo_cars_lagging_steering_round_its_limit() 
     assert 0.95 < lap.lap_time / line.lap_time < 1.08
 
 
-@pytest.mark.parametrize(("track", "pace"), [("Oval_track", 0.98), ("Oval_track", 0.94), ("reInvent2019_track", 0.96)])
+@pytest.mark.parametrize(
+    ("track", "pace"),
+    [
+        # The two loops of the measurement in docs/racing.md.
+        pytest.param("Oval_track", 0.98, marks=needs_deepracer_tracks),
+        pytest.param("Oval_track", 0.94, marks=needs_deepracer_tracks),
+        pytest.param("reInvent2019_track", 0.96, marks=needs_deepracer_tracks),
+        # racer's default loop, so that this runs without DeepRacer's files (measured once, on a shared machine:
+        # laps 1.053 and 1.064 times the limit's at paces 0.98 and 0.94, against bounds of 1.10 and 1.14).
+        (DEFAULT_TRACK, 0.96),
+    ],
+)
 def test_the_follower_keeps_the_gazebo_car_on_track_at_and_below_its_limit(track: str, pace: float) -> None:
     """No retries: one lap at a uniform fraction of the profile. The earlier follower finished 1 of 10 such laps on
-    these two loops (paces 1.0 to 0.92; on Oval_track it left at 26-28 % at every pace, unwinding the lagging wheels
-    in the bend); with the heading cost, the previous choice among the checked plans and braking at the lowest
-    command, all ten (docs/racing.md)."""
+    Oval_track and reInvent2019_track (paces 1.0 to 0.92; on Oval_track it left at 26-28 % at every pace, unwinding
+    the lagging wheels in the bend); with the heading cost, the previous choice among the checked plans and braking
+    at the lowest command, all ten (docs/racing.md)."""
     from sim.follower import LineFollower, _drive, follower_env
 
     car = load_car("deepracer-gazebo")
@@ -310,7 +341,7 @@ def test_the_follower_slows_only_the_stretch_before_where_a_try_left(limits: Car
     """A try that leaves the track slows the 4 m before that place (and 0.5 m after), not the lap."""
     from sim.follower import SLOW_AFTER_M, SLOW_BEFORE_M, _stretch_before
 
-    line = racing_line(load_track("reinvent_base"), limits)
+    line = racing_line(load_track(DEFAULT_TRACK), limits)
     where = line.points[100]
     mask = _stretch_before(line, where)
     assert mask[100] and mask[99] and not mask[int(100 - (SLOW_BEFORE_M + 1.0) / line.ds.mean())]
@@ -332,7 +363,7 @@ def test_the_follower_commands_the_lead_speed_within_the_cars_range(limits: CarL
     from sim.follower import SPEED_LEAD_S, LineFollower, lead_speed
     from sim.physics import SPEED_RANGE_MPS
 
-    line = racing_line(load_track("reinvent_base"), limits)
+    line = racing_line(load_track(DEFAULT_TRACK), limits)
     follower = LineFollower(line, limits)
     standing = line.speed
     cruise = int(np.argmax(standing[:-1]))
@@ -354,7 +385,7 @@ def test_the_follower_reads_the_profiles_squared_speed_from_a_standing_start(lim
     v1 the profile's speed is v1 / sqrt(3), not v1 / 3 (which left the default car waiting at the start)."""
     from sim.follower import LineFollower
 
-    line = racing_line(load_track("reinvent_base"), limits)
+    line = racing_line(load_track(DEFAULT_TRACK), limits)
     follower = LineFollower(line, limits)
     v1, s1 = float(line.speed[1]), float(line.ds[0])
     assert line.speed[0] == 0.0 and v1 > 0.5
@@ -366,7 +397,7 @@ def test_the_follower_measures_the_cars_distance_along_the_line_not_the_nearest_
     beyond half the spacing to the next point the distance is that of the halfway point (it is nearer the next)."""
     from sim.follower import LineFollower
 
-    line = racing_line(load_track("reinvent_base"), limits)
+    line = racing_line(load_track(DEFAULT_TRACK), limits)
     follower = LineFollower(line, limits)
     p, tangent = line.points[50], line.points[51] - line.points[49]
     tangent = tangent / np.linalg.norm(tangent)
@@ -380,7 +411,7 @@ def test_the_follower_measures_the_cars_distance_along_the_line_not_the_nearest_
 def test_a_lap_outside_the_lines_corridor_is_found_where_it_first_leaves(limits: CarLimits) -> None:
     from sim.follower import _outside_corridor
 
-    line = racing_line(load_track("reinvent_base"), limits)
+    line = racing_line(load_track(DEFAULT_TRACK), limits)
     cor = line.corridor
     inside = cor.center + (0.5 * (cor.low + cor.high))[:, None] * cor.normal
     assert _outside_corridor(line, inside) is None
@@ -395,16 +426,16 @@ def test_a_lap_that_leaves_the_corridor_is_driven_again_and_the_fastest_is_kept(
     slower before where the last left it, and the lap reported is the fastest, at least as fast as the first."""
     from sim.follower import LineFollower, _drive, drive_line, follower_env
 
-    line = racing_line(load_track("reinvent_base"), limits)
+    line = racing_line(load_track(DEFAULT_TRACK), limits)
     cor = line.corridor
     line = replace(line, corridor=replace(cor, low=line.offsets - 0.01, high=line.offsets + 0.01))
-    env = follower_env("reinvent_base", limits)
+    env = follower_env(DEFAULT_TRACK, limits)
     try:
         first, _ = _drive(env, LineFollower(line, limits))
     finally:
         env.close()
     assert first.status == "lap_complete"
-    lap = drive_line("reinvent_base", line, limits)
+    lap = drive_line(DEFAULT_TRACK, line, limits)
     assert lap.tries >= 1 + CORRIDOR_TRIES and lap.status == "lap_complete"
     assert lap.lap_time <= first.lap_time
 
@@ -413,7 +444,7 @@ def test_the_followers_k_d_tree_finds_the_same_costs_as_all_pairs(limits: CarLim
     """A plan's thousands of points are matched to the line with a k-d tree; the cost must be the all-pairs one."""
     from sim.follower import KD_TREE_MIN_POINTS, LineFollower
 
-    line = racing_line(load_track("reinvent_base"), limits)
+    line = racing_line(load_track(DEFAULT_TRACK), limits)
     follower = LineFollower(line, limits)
     rng = np.random.default_rng(0)
     near = 40
@@ -430,9 +461,9 @@ def test_the_followers_check_stops_losing_trials_early_and_still_picks_the_cheap
     the one a full drive of every trial gives."""
     from sim.follower import LineFollower, follower_env
 
-    line = racing_line(load_track("reinvent_base"), limits)
+    line = racing_line(load_track(DEFAULT_TRACK), limits)
     follower = LineFollower(line, limits)
-    env = follower_env("reinvent_base", limits)
+    env = follower_env(DEFAULT_TRACK, limits)
     try:
         env.reset(seed=0, options={"start_index": 0, "reverse": False})
         physics, profile = env.physics, line.speed
@@ -458,8 +489,8 @@ def test_a_retry_replays_the_steps_its_slower_stretch_leaves_unchanged(limits: C
     plans: the lap must be the one a retry planned from the start drives, and the replay must cover part of it."""
     from sim.follower import LineFollower, _drive, _stretch_before, follower_env
 
-    line = racing_line(load_track("reinvent_base"), limits)
-    env = follower_env("reinvent_base", limits)
+    line = racing_line(load_track(DEFAULT_TRACK), limits)
+    env = follower_env(DEFAULT_TRACK, limits)
     try:
         first, record = _drive(env, LineFollower(line, limits))
         pace = np.ones(len(line.points))
@@ -473,7 +504,8 @@ def test_a_retry_replays_the_steps_its_slower_stretch_leaves_unchanged(limits: C
     np.testing.assert_array_equal(replayed.path, fresh.path)
     assert replayed.lap_time == fresh.lap_time and replayed.status == fresh.status == "lap_complete"
     # The slowed stretch changed the lap, so the checks above could fail. Its path, not its time: at the limit a
-    # slower stretch may give a faster lap (measured: 5.80 s against 5.87 s on an Intel Xeon, slower on an AMD EPYC).
+    # slower stretch may give a faster lap (measured on reinvent_base: 5.80 s against 5.87 s on an Intel Xeon,
+    # slower on an AMD EPYC).
     assert not np.array_equal(fresh.path, first.path)
     assert [len(r) for r in again.reads[:same]] == [len(r) for r in record.reads[:same]]
 
@@ -516,7 +548,7 @@ def test_a_car_whose_steering_lags_gets_the_wider_simulator_check() -> None:
     from sim.follower import CHECK_OFFSETS_DEG, LAGGING_CHECK_OFFSETS_DEG, LineFollower
 
     quick = flat_limits()
-    line = racing_line(load_track("reinvent_base"), quick)
+    line = racing_line(load_track(DEFAULT_TRACK), quick)
     assert LineFollower(line, quick)._offsets == CHECK_OFFSETS_DEG == (-2.0, 0.0, 2.0)
     lagging = replace(quick, steering_tau_s=0.5)
     follower = LineFollower(line, lagging)

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from common.defaults import DEFAULT_TRACK
 from common.race import RaceConfig
 from common.sensors import CAMERA_KEY, LIDAR_KEY
 from sim.env import RacerEnv
@@ -30,7 +31,7 @@ def metadata(tmp_path: Path, sensors: list[str]) -> str:
 
 
 def test_a_time_trial_has_no_objects_and_the_simapps_empty_object_params() -> None:
-    env = RacerEnv(track="reinvent_base")
+    env = RacerEnv(track=DEFAULT_TRACK)
     _, info = env.reset(seed=0)
     _, _, _, _, info = env.step(0)
     p = info["params"]
@@ -39,7 +40,7 @@ def test_a_time_trial_has_no_objects_and_the_simapps_empty_object_params() -> No
 
 
 def test_obstacle_params_follow_the_placed_objects() -> None:
-    env = RacerEnv(track="reinvent_base", race=RaceConfig(race_type="OBJECT_AVOIDANCE"))
+    env = RacerEnv(track=DEFAULT_TRACK, race=RaceConfig(race_type="OBJECT_AVOIDANCE"))
     _, info = env.reset(seed=0, options={"start_index": 0})
     p = info["params"]
     assert len(env.objects) == 6  # DRfC's default count
@@ -66,7 +67,7 @@ def _drive_into(env: RacerEnv, target: Pose, gap: float, steps: int = 60) -> dic
 
 
 def test_driving_into_a_box_is_a_crash_that_ends_the_episode(tmp_path: Path) -> None:
-    env = RacerEnv(track="reinvent_base", race=ONE_BOX, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
+    env = RacerEnv(track=DEFAULT_TRACK, race=ONE_BOX, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
     env.reset(seed=0, options={"start_index": 0})
     box = env.objects[0]
     info = _drive_into(env, Pose(box.x, box.y, box.yaw), 1.0)
@@ -75,10 +76,10 @@ def test_driving_into_a_box_is_a_crash_that_ends_the_episode(tmp_path: Path) -> 
 
 
 def test_a_time_trial_car_drives_through_where_a_box_would_be(tmp_path: Path) -> None:
-    boxed = RacerEnv(track="reinvent_base", race=ONE_BOX)
+    boxed = RacerEnv(track=DEFAULT_TRACK, race=ONE_BOX)
     boxed.reset(seed=0, options={"start_index": 0})
     box = boxed.objects[0]
-    env = RacerEnv(track="reinvent_base", action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
+    env = RacerEnv(track=DEFAULT_TRACK, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
     env.reset(seed=0, options={"start_index": 0})
     info = _drive_into(env, Pose(box.x, box.y, box.yaw), 1.0, steps=30)
     assert info["params"]["is_crashed"] is False and info["episode_status"] == "in_progress"
@@ -86,7 +87,7 @@ def test_a_time_trial_car_drives_through_where_a_box_would_be(tmp_path: Path) ->
 
 
 def test_bot_cars_drive_their_lanes_and_report_their_speed() -> None:
-    env = RacerEnv(track="reinvent_base", race=BOTS)
+    env = RacerEnv(track=DEFAULT_TRACK, race=BOTS)
     _, info = env.reset(seed=0, options={"start_index": 0})
     before = np.array(info["params"]["objects_location"])
     for _ in range(15):
@@ -101,8 +102,8 @@ def test_bot_cars_drive_their_lanes_and_report_their_speed() -> None:
 @pytest.mark.parametrize("sensors", [["STEREO_CAMERAS", "LIDAR"], ["FRONT_FACING_CAMERA", "SECTOR_LIDAR"]])
 def test_the_lidar_and_the_camera_see_a_box(tmp_path: Path, sensors: list[str]) -> None:
     space = metadata(tmp_path, sensors)
-    seen = RacerEnv(track="reinvent_base", action_space=space, race=ONE_BOX)
-    empty = RacerEnv(track="reinvent_base", action_space=space)
+    seen = RacerEnv(track=DEFAULT_TRACK, action_space=space, race=ONE_BOX)
+    empty = RacerEnv(track=DEFAULT_TRACK, action_space=space)
     frames = []
     for env in (seen, empty):
         env.reset(seed=0, options={"start_index": 0})
@@ -130,14 +131,14 @@ def test_the_lidar_and_the_camera_see_a_box(tmp_path: Path, sensors: list[str]) 
 
 
 def test_stereo_frames_are_two_views_of_the_objects(tmp_path: Path) -> None:
-    env = RacerEnv(track="reinvent_base", action_space=metadata(tmp_path, ["STEREO_CAMERAS"]), race=ONE_BOX)
+    env = RacerEnv(track=DEFAULT_TRACK, action_space=metadata(tmp_path, ["STEREO_CAMERAS"]), race=ONE_BOX)
     obs, _ = env.reset(seed=0, options={"start_index": 0})
     assert obs.shape == (120, 160, 2) and obs.dtype == np.uint8
     assert not np.array_equal(obs[..., 0], obs[..., 1])  # 6 cm apart
 
 
 def test_box_colours_change_with_the_track_colour_randomization() -> None:
-    env = RacerEnv(track="reinvent_base", race=ONE_BOX, randomization={"track_color": 0.5})
+    env = RacerEnv(track=DEFAULT_TRACK, race=ONE_BOX, randomization={"track_color": 0.5})
     env.reset(seed=0)
     first = env._box_colors.copy()
     env.reset()
@@ -150,7 +151,7 @@ def test_the_sim_trace_of_a_race_with_objects_has_the_simapps_crash_column(tmp_p
 
     from common.simtrace import COLUMNS, OBSTACLE_COLUMN, SimTraceRecorder
 
-    env = RacerEnv(track="reinvent_base", race=ONE_BOX, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
+    env = RacerEnv(track=DEFAULT_TRACK, race=ONE_BOX, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
     env.reset(seed=0, options={"start_index": 0})
     box = env.objects[0]
     recorder = SimTraceRecorder()
@@ -170,7 +171,7 @@ def test_the_sim_trace_of_a_race_with_objects_has_the_simapps_crash_column(tmp_p
     assert list(trace.columns) == [*COLUMNS, OBSTACLE_COLUMN]
     assert trace["episode_status"].iloc[-1] == "crashed" and trace[OBSTACLE_COLUMN].tolist()[-1] == 1
     assert trace[OBSTACLE_COLUMN].iloc[0] == 0
-    plain = RacerEnv(track="reinvent_base")
+    plain = RacerEnv(track=DEFAULT_TRACK)
     _, info = plain.reset(seed=0)
     assert OBSTACLE_COLUMN not in info  # a time trial keeps DeepRacer's 17 columns
 
@@ -180,7 +181,7 @@ def test_an_evaluation_puts_the_car_back_behind_the_box_with_the_collision_penal
     # obstacle, in the lane the obstacle is not in, paused for COLLISION_PENALTY seconds.
     penalties = {"number_of_resets": 2, "collision_penalty": 5.0, "reset_behind_dist": 1.0}
     race = RaceConfig.model_validate(ONE_BOX.model_dump() | {"penalties": penalties})
-    env = RacerEnv(track="reinvent_base", race=race, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
+    env = RacerEnv(track=DEFAULT_TRACK, race=race, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
     env.reset(seed=0, options={"start_index": 0})
     box = env.objects[0]
     start = Pose(box.x - math.cos(box.yaw), box.y - math.sin(box.yaw), box.yaw)
@@ -198,7 +199,7 @@ def test_an_evaluation_puts_the_car_back_behind_the_box_with_the_collision_penal
     assert 0.25 < abs(pose.y - box.y) < 0.5  # ... in the other lane, half a track width across
     _, _, _, _, after = env.step(0)
     assert after["params"]["sim_time"] > 5.0  # the penalty runs on the lap's clock
-    training = RacerEnv(track="reinvent_base", race=race, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
+    training = RacerEnv(track=DEFAULT_TRACK, race=race, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
     training.reset(seed=0, options={"start_index": index})
     training.physics.reset(start)
     training._place_objects()
@@ -215,7 +216,7 @@ def test_the_envs_object_params_equal_a_fresh_computation(reverse: bool) -> None
     from sim.objects import object_params
 
     race = RaceConfig(race_type="OBJECT_AVOIDANCE", object_avoidance={"randomize_obstacle_locations": True})
-    env = RacerEnv(track="Spain_track", race=race)
+    env = RacerEnv(track="racer_loop_cw", race=race)  # a clockwise loop
     env.reset(seed=3, options={"reverse": reverse})
     rng = np.random.default_rng(0)
     for _ in range(150):
@@ -240,7 +241,7 @@ def test_deepracers_evaluation_resets_count_in_the_trial_and_its_summary(tmp_pat
     race = RaceConfig(race_type="TIME_TRIAL", penalties=penalties)
     space = tmp_path / "model_metadata.json"
     space.write_text(json.dumps({"action_space": [{"steering_angle": 30.0, "speed": 2.0}], "version": "5"}))
-    env = RacerEnv(track="reinvent_base", race=race, action_space=str(space))
+    env = RacerEnv(track=DEFAULT_TRACK, race=race, action_space=str(space))
     torch.manual_seed(0)
     model = build_policy((120, 160, 1), action_space_spec(env.actions))
     trial = run_trial(env, model, 1, 0, False, 0, True, resets=True)
@@ -259,7 +260,7 @@ def test_the_10_hz_lidar_repeats_its_last_scan_on_one_step_in_three(tmp_path: Pa
     from sim.lidar import scan_due
 
     assert [scan_due(i) for i in range(8)] == [True, False, True, True, False, True, True, False]
-    env = RacerEnv(track="reinvent_base", action_space=metadata(tmp_path, ["STEREO_CAMERAS", "LIDAR"]), race=ONE_BOX)
+    env = RacerEnv(track=DEFAULT_TRACK, action_space=metadata(tmp_path, ["STEREO_CAMERAS", "LIDAR"]), race=ONE_BOX)
     env.reset(seed=0, options={"start_index": 0})
     box = env.objects[0]
     side = box.yaw + math.pi / 2

@@ -12,6 +12,7 @@ from pathlib import Path
 import redis
 
 from common.config import EnvConfig
+from common.defaults import STRAIGHT_TRACK
 from common.keys import Keys
 from model_store import RunStore, open_store
 from sim.drive import drive_random
@@ -45,7 +46,7 @@ def test_train_two_workers_learns_and_survives_a_killed_worker(tmp_path, redis_u
         "--workers",
         "2",
         "--track",
-        "Straight_track",
+        STRAIGHT_TRACK,
         "--run-id",
         run_id,
         "--hyperparams",
@@ -79,7 +80,7 @@ def test_train_two_workers_learns_and_survives_a_killed_worker(tmp_path, redis_u
     assert "restarting it (1 of 3)" in out  # and started it again (it was killed, not a user error)
 
     rows = [json.loads(line) for line in runs.read_file(run_id, "metrics.jsonl").decode().splitlines()]
-    random_progress = sum(r["progress"] for r in drive_random(EnvConfig(track="Straight_track"), 30, 1)) / 30
+    random_progress = sum(r["progress"] for r in drive_random(EnvConfig(track=STRAIGHT_TRACK), 30, 1)) / 30
     best_late = max(r["mean_progress"] for r in rows[-3:])
     assert best_late > random_progress + 5, (random_progress, [r["mean_progress"] for r in rows])
 
@@ -90,7 +91,7 @@ def test_train_embedded_redis_starts_and_cleans_up(tmp_path):
         "--workers",
         "1",
         "--track",
-        "Straight_track",
+        STRAIGHT_TRACK,
         "--run-id",
         "emb",
         "--time-limit",
@@ -122,9 +123,9 @@ def test_bad_reward_function_fails_before_starting_anything(tmp_path):
 
 
 def _interrupt_train(tmp_path, run_id: str, extra: list[str], checkpoints: int, sig: signal.Signals) -> str:
-    """Start ``racer train`` on Straight_track, wait (up to 180 s) for ``checkpoints`` checkpoints, send ``sig``;
+    """Start ``racer train`` on racer_straight, wait (up to 180 s) for ``checkpoints`` checkpoints, send ``sig``;
     it must exit 0 and leave no role process behind. Returns what it printed."""
-    cmd = [sys.executable, "-m", "racer", "train", "--workers", "1", "--track", "Straight_track", "--run-id", run_id]
+    cmd = [sys.executable, "-m", "racer", "train", "--workers", "1", "--track", STRAIGHT_TRACK, "--run-id", run_id]
     # A shell's background job (`bash .ci/run &`) inherits SIGINT ignored, and Python then never raises
     # KeyboardInterrupt: give the launcher the disposition a terminal's foreground job has.
     proc = subprocess.Popen(
@@ -178,7 +179,7 @@ def test_evaluator_keeps_best_and_training_stops_when_robust(tmp_path):
         "--workers",
         "2",
         "--track",
-        "Straight_track",
+        STRAIGHT_TRACK,
         "--run-id",
         "rb",
         "--hyperparams",

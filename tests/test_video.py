@@ -10,10 +10,12 @@ import cv2
 import numpy as np
 import pytest
 
+from common.defaults import DEFAULT_TRACK
 from sim.env import RacerEnv
 from sim.physics import Pose
 from sim.texture import TextureFrame, draw_surface
-from sim.track import load_track
+from sim.track import Track
+from sim.track_gen import racer_track_array
 from sim.video import EpisodeVideo, record_episode
 
 STRAIGHT = 5  # DeepRacer's default action space: 0° at 1 m/s
@@ -37,14 +39,14 @@ def read_video(path: Path) -> tuple[list[np.ndarray], float]:
 
 @pytest.fixture(scope="module")
 def env():
-    env = RacerEnv(track="reinvent_base")
+    env = RacerEnv(track=DEFAULT_TRACK)
     yield env
     env.close()
 
 
 def test_record_episode_writes_a_decodable_mp4(env, tmp_path):
     path = tmp_path / "videos" / "episode.mp4"
-    # Waypoint 0 of reinvent_base starts a long straight: 30 straight steps (2 s at 1 m/s) stay on the road.
+    # Waypoint 0 of racer_loop is on its straightest stretch: 30 straight steps (2 s at 1 m/s) stay on the road.
     summary = record_episode(env, lambda obs: STRAIGHT, path, max_steps=STEPS, options={"start_index": 0})
     assert summary["steps"] == STEPS
     assert summary["frames"] == STEPS + 1  # the reset frame, then one per step
@@ -85,8 +87,20 @@ def test_episode_video_refuses_a_wrong_camera_image(env, tmp_path):
     assert video.frames == 0
 
 
+def tall_track() -> Track:
+    """racer_loop turned a quarter turn anticlockwise (x, y -> -y, x; still a counter-clockwise loop): its borders
+    span 4.17 m across and 8.06 m up."""
+    rows = racer_track_array(DEFAULT_TRACK)
+    turned = rows.copy()
+    turned[:, 0::2] = rows[:, 1::2].max() + 0.5 - rows[:, 1::2]
+    turned[:, 1::2] = rows[:, 0::2]
+    return Track.from_array(turned, name="racer_loop_turned")
+
+
 def test_a_tall_track_is_shrunk_to_the_camera_height(tmp_path):
-    track = load_track("H_track")  # taller than wide: the 480-wide top-down view would be ~630 px tall
+    # Taller than wide: with the texture's 1.5 m margins, 7.17 m by 11.06 m, so the 480-wide top-down view would be
+    # 480 x 11.06 / 7.17 = 741 px tall, and is shrunk to 360 px, 233 px wide.
+    track = tall_track()
     frame = TextureFrame.for_track(track, ppm=40)
     texture = draw_surface(track, frame)
     camera = np.full((120, 160), 128, np.uint8)
@@ -142,11 +156,11 @@ def _oa_env(sensors: list[str] | None, tmp_path: Path, **race) -> RacerEnv:
             f'"sensor": {json.dumps(sensors)}, "version": "5"}}'
         )
         kwargs["action_space"] = str(space)
-    return RacerEnv(track="reinvent_base", race=RaceConfig(**race), **kwargs)
+    return RacerEnv(track=DEFAULT_TRACK, race=RaceConfig(**race), **kwargs)
 
 
 def _top_pixel(video: EpisodeVideo, x: float, y: float) -> tuple[int, int]:
-    """(row, column) in a composed frame of the world point (x, y) on the top-down panel (reinvent_base: wider than
+    """(row, column) in a composed frame of the world point (x, y) on the top-down panel (racer_loop: wider than
     tall, so the panel is not shrunk, only padded to the camera's height)."""
     u, v = np.round(video._frame.to_pixels(np.array([[x, y]]))).astype(int)[0]
     pad = (video.height - video._frame.height) // 2
