@@ -180,8 +180,8 @@ def _validate(raw: np.ndarray, source: str) -> tuple[np.ndarray, bool]:
     if np.any(width < 0.05):
         bad = int(np.argmin(width))
         raise TrackError(f"track file {source!r}: track width {width[bad]:.3f} m at row {bad} is too narrow")
-    # DeepRacer loads a track whose borders cross (the simapp builds shapely geometry and never checks it: the
-    # 2019 reinvent_base.npy has a self-crossing border), so racer loads it too, and says where the crossing is.
+    # DeepRacer loads a track whose borders cross (the simapp builds shapely geometry and never checks it), so racer
+    # loads it too, and says where the crossing is. None of the 127 routes at SIMAPP_COMMIT has such a crossing.
     for col, label in ((2, "inner"), (4, "outer")):
         border = arr[:, col : col + 2]
         pairs = _self_crossings(border)

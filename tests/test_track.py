@@ -326,8 +326,8 @@ def test_too_few_points_is_a_track_error(tmp_path):
 
 
 def test_self_crossing_border_loads_with_a_warning_naming_the_crossing(tmp_path, caplog):
-    # DeepRacer loads such a file (the simapp never validates its shapely geometry; the 2019 reinvent_base.npy has a
-    # self-crossing border), so racer loads it and says where the border crosses itself.
+    # DeepRacer loads such a file (the simapp never validates its shapely geometry), so racer loads it and says where
+    # the border crosses itself.
     arr = circle_array()
     theta = 2 * np.pi * np.arange(CIRCLE_POINTS + 1) / CIRCLE_POINTS
     # Figure-eight inner border (crosses itself at the origin), well away from the outer border.
