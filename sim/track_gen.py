@@ -21,11 +21,13 @@ from dataclasses import dataclass
 from functools import cache
 
 import numpy as np
+from scipy.ndimage import maximum_filter1d
 
 from common.defaults import DEFAULT_TRACK, STRAIGHT_TRACK
 
 _SPACING_M = 0.15  # DeepRacer's routes space waypoints 0.13-0.30 m apart; reinvent_base 0.15 m.
 _DENSE = 8000  # samples of the analytic curve before resampling at even arc length
+_START_STRETCH_M = 2.0  # the straightest 2 m of a loop holds its start line
 _MARGIN_M = 0.5  # the track's bounding box starts this far from the origin, as DeepRacer's routes lie in x, y > 0
 
 
@@ -99,11 +101,13 @@ def _loop(spec: LoopSpec) -> np.ndarray:
     closed *= spec.length_m / s[-1]
     s *= spec.length_m / s[-1]
     n = round(spec.length_m / _SPACING_M)
-    # Start on the straightest stretch, as DeepRacer's start lines are on straights.
-    start = s[int(np.argmin(np.abs(_curvature(dense))))]
+    start = s[_straightest(dense, spec.length_m)]
     targets = (start + np.arange(n) * spec.length_m / n) % spec.length_m
     center = np.column_stack([np.interp(targets, s, closed[:, 0]), np.interp(targets, s, closed[:, 1])])
-    tangent = np.roll(center, -1, axis=0) - np.roll(center, 1, axis=0)
+    # Borders offset along each step's own normal (the segment ahead), not the bisector of the two steps at a
+    # waypoint: a border point on the bisector is equally far from both centre-line segments, and the simapp's
+    # projections (shapely) would then hang on a tie that rounding breaks either way.
+    tangent = np.roll(center, -1, axis=0) - center
     left = np.column_stack([-tangent[:, 1], tangent[:, 0]]) / np.linalg.norm(tangent, axis=1)[:, None]
     half = spec.width_m / 2
     rows = np.column_stack([center, center + half * left, center - half * left])  # CCW: inside is on the left
@@ -112,6 +116,14 @@ def _loop(spec: LoopSpec) -> np.ndarray:
     rows[:, 0::2] += _MARGIN_M - rows[:, 0::2].min()
     rows[:, 1::2] += _MARGIN_M - rows[:, 1::2].min()
     return np.vstack([rows, rows[:1]])  # a loop repeats its first row exactly as its last
+
+
+def _straightest(dense: np.ndarray, length_m: float) -> int:
+    """The middle of the stretch, ``_START_STRETCH_M`` long, whose tightest bend is the gentlest: DeepRacer's start
+    lines are on straights. (The least-curved single point would be an S's inflection, inside two bends.)"""
+    per_metre = len(dense) / length_m
+    tightest = maximum_filter1d(np.abs(_curvature(dense)), size=round(_START_STRETCH_M * per_metre), mode="wrap")
+    return int(np.argmin(tightest))
 
 
 def _curvature(points: np.ndarray) -> np.ndarray:

@@ -18,9 +18,10 @@ from sim.physics import Pose
 from sim.texture import DEEPRACER_PALETTE
 
 TRACK = DEFAULT_TRACK
-STRAIGHTEST = 47
-"""racer_loop's straightest waypoint: its centre line bends at radius 5 m or more from 0.3 m behind it to 2.4 m
-ahead (reinvent_base's waypoint 3, which these tests used, is on a true straight; racer_loop has none)."""
+STRAIGHTEST = 109
+"""racer_loop's straightest waypoint for a camera: its centre line bends at radius 4.3 m or more from 0.3 m behind
+it to 2.4 m ahead, the widest of any waypoint (reinvent_base's waypoint 3, which these tests used, is on a true
+straight; racer_loop has none). Found by the curvature at each waypoint over that window."""
 H, W = 120, 160
 AGREEMENT_POSES = [(0, False), (20, True), (45, False), (70, True), (100, False)]
 """(start waypoint, reversed) of the poses where both cameras are compared."""

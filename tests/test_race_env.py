@@ -83,7 +83,9 @@ def test_a_time_trial_car_drives_through_where_a_box_would_be(tmp_path: Path) ->
     env.reset(seed=0, options={"start_index": 0})
     info = _drive_into(env, Pose(box.x, box.y, box.yaw), 1.0, steps=30)
     assert info["params"]["is_crashed"] is False and info["episode_status"] == "in_progress"
-    assert info["pose"].x > box.x + 0.3  # drove on past it
+    pose = info["pose"]
+    ahead = (pose.x - box.x) * math.cos(box.yaw) + (pose.y - box.y) * math.sin(box.yaw)
+    assert ahead > 0.3  # drove on past it, along the box's heading
 
 
 def test_bot_cars_drive_their_lanes_and_report_their_speed() -> None:
@@ -195,8 +197,9 @@ def test_an_evaluation_puts_the_car_back_behind_the_box_with_the_collision_penal
             break
     assert info["episode_status"] == "crashed" and not terminated and info["pause_duration"] == 5.0
     pose = info["pose"]
-    assert abs(pose.x - (box.x - 1.0)) < 0.05  # a metre behind it (this stretch runs along +x) ...
-    assert 0.25 < abs(pose.y - box.y) < 0.5  # ... in the other lane, half a track width across
+    where = env.track.project(np.array([[pose.x, pose.y], [box.x, box.y]]))
+    assert abs((where.s[1] - where.s[0]) - 1.0) < 0.05  # a metre behind it along the track ...
+    assert 0.25 < abs(where.lateral[0] - where.lateral[1]) < 0.5  # ... in the other lane, half a track width across
     _, _, _, _, after = env.step(0)
     assert after["params"]["sim_time"] > 5.0  # the penalty runs on the lap's clock
     training = RacerEnv(track=DEFAULT_TRACK, race=race, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
