@@ -21,6 +21,7 @@ import botocore.exceptions as bex
 from botocore.config import Config
 
 from common.errors import UserError
+from common.files import write_atomically
 
 
 class StoreError(UserError, RuntimeError):
@@ -128,20 +129,7 @@ class LocalStore(ObjectStore):
         path = self._path(key)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.parent / f"{_TMP_PREFIX}{uuid.uuid4().hex}"
-            # os.open with 0o666 lets the umask decide permissions (mkstemp would force 0600, unreadable to
-            # other containers sharing the volume).
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-            try:
-                with os.fdopen(fd, "wb") as f:
-                    f.write(data)
-                    f.flush()
-                    # The data must be on disk before the rename is, or a crash could leave a pointer to zeros.
-                    os.fsync(f.fileno())
-                os.replace(tmp, path)
-            except BaseException:
-                tmp.unlink(missing_ok=True)
-                raise
+            write_atomically(path, data, f"{_TMP_PREFIX}{uuid.uuid4().hex}")
         except OSError as exc:
             raise StoreError(f"cannot write {path}: {exc.strerror or type(exc).__name__}") from exc
 

@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import hashlib
 import os
-import tempfile
 import urllib.error
 import urllib.request
+import uuid
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cache
@@ -26,6 +26,7 @@ from importlib import resources
 from pathlib import Path
 
 from common.errors import UserError
+from common.files import write_atomically
 
 SIMAPP_COMMIT = "01f5f015fd852f952b351643898d4beb4f36494b"
 """aws-deepracer-community/deepracer-simapp, 2026-07-18 ("Apply Upstream v1.2.4"): the routes and route reading
@@ -135,7 +136,7 @@ def _pull_one(name: str, digest: str, source: str, folder: Path) -> Pulled | str
             f"file ({len(data)} bytes); the track folder is unchanged"
         )
     try:
-        _write_atomically(target, data)
+        write_atomically(target, data, f".{target.name}.{uuid.uuid4().hex}.partial")
     except OSError as exc:
         return f"{target}: cannot write ({exc.strerror or exc}); the track folder is unchanged"
     return Pulled(name, target, fresh=True)
@@ -170,20 +171,6 @@ def _read(where: str) -> bytes:
     if expected is not None and expected.isdigit() and int(expected) != len(data):
         raise PullError(f"{where}: partial download ({len(data)} of {expected} bytes)")
     return data
-
-
-def _write_atomically(target: Path, data: bytes) -> None:
-    """Write ``data`` under a temporary name in the same folder and rename it: readers never see half a file."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _sha256(data: bytes) -> str:

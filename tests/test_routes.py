@@ -8,6 +8,7 @@ import hashlib
 import http.server
 import os
 import socket
+import stat
 import subprocess
 import sys
 import threading
@@ -114,6 +115,10 @@ def test_pull_all_from_a_local_server_caches_127_verified_tracks_that_load(tmp_p
     assert files == sorted(f"{n}.npy" for n in deepracer_route_names())  # nothing else: no partial file
     for name, digest in route_checksums().items():
         assert hashlib.sha256((cache / f"{name}.npy").read_bytes()).hexdigest() == digest
+    umask = os.umask(0)
+    os.umask(umask)
+    # Readable as the umask allows (a folder mounted into containers), not mkstemp's 0600.
+    assert stat.S_IMODE((cache / "reinvent_base.npy").stat().st_mode) == 0o666 & ~umask
     track = load_track(cache / "2024_reinvent_champ_ccw.npy")
     assert track.closed and track.length == pytest.approx(25.11, abs=0.01)
 
