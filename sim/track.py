@@ -8,7 +8,7 @@ border inside the loop. A loop repeats its first row exactly as its last; an ope
 A route is read as DeepRacer's simapp reads it (``bundle/markov/track_geom/track_data.py``,
 ``TrackData.__init__`` and ``_sanitize_waypoints``, at :data:`sim.routes.SIMAPP_COMMIT`): a bad shape or a
 non-finite value is an error naming the row and column; it is a loop when its first and last rows are equal in
-every column; zero-length centre-line steps (under 1e-9 m) are dropped, a loop's closing row kept. The result is
+every column; zero-length centre-line steps (1e-9 m or shorter) are dropped, a loop's closing row kept. The result is
 ``Track.waypoints``, which is also the reward function's ``waypoints``.
 
 A track is named by a path to an ``.npy`` file, one of racer's own tracks (:mod:`sim.track_gen`, generated, always
