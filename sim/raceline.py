@@ -27,6 +27,7 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize
 
 from sim.car_limits import CarLimits
+from sim.geometry import curvature as closed_curvature
 from sim.physics import TRACK_WIDTH_M
 from sim.track import Track, TrackError
 
@@ -112,15 +113,6 @@ def corridor(track: Track, margin: float = DEFAULT_MARGIN_M) -> Corridor:
     right = np.interp(s, s_rows, -np.minimum(inner, outer))
     beyond = TRACK_WIDTH_M / 2 - margin  # the centre may pass the border until the last wheel leaves the track
     return Corridor(s=s, center=center, normal=normal, low=-(right + beyond), high=left + beyond)
-
-
-def _curvature(points: np.ndarray) -> np.ndarray:
-    """Signed Menger curvature of a closed polyline at each point, 1/m."""
-    a = points - np.roll(points, 1, axis=0)
-    b = np.roll(points, -1, axis=0) - points
-    cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    denom = np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1) * np.linalg.norm(a + b, axis=1)
-    return 2.0 * cross / np.maximum(denom, 1e-12)
 
 
 def _spline_basis(s: np.ndarray, length: float, knot_spacing: float) -> np.ndarray:
@@ -330,7 +322,7 @@ def racing_line(track: Track, limits: CarLimits, margin: float = DEFAULT_MARGIN_
     offsets = optimise_line(cor, limits)
     points = cor.center + offsets[:, None] * cor.normal
     ds = np.linalg.norm(np.roll(points, -1, axis=0) - points, axis=1)
-    curvature = _curvature(points)
+    curvature = closed_curvature(points)
     speed, lap = speed_profile(ds, curvature, limits, v_start=0.0)
     flying, flying_lap = speed_profile(ds, curvature, limits, v_start=None)
     return RacingLine(points, offsets, ds, curvature, speed, flying[:-1], lap, flying_lap, cor)

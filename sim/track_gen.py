@@ -24,6 +24,7 @@ import numpy as np
 from scipy.ndimage import maximum_filter1d
 
 from common.defaults import DEFAULT_TRACK, STRAIGHT_TRACK
+from sim.geometry import curvature
 
 _SPACING_M = 0.15  # DeepRacer's routes space waypoints 0.13-0.30 m apart; reinvent_base 0.15 m.
 _DENSE = 8000  # samples of the analytic curve before resampling at even arc length
@@ -122,11 +123,5 @@ def _straightest(dense: np.ndarray, length_m: float) -> int:
     """The middle of the stretch, ``_START_STRETCH_M`` long, whose tightest bend is the gentlest: DeepRacer's start
     lines are on straights. (The least-curved single point would be an S's inflection, inside two bends.)"""
     per_metre = len(dense) / length_m
-    tightest = maximum_filter1d(np.abs(_curvature(dense)), size=round(_START_STRETCH_M * per_metre), mode="wrap")
+    tightest = maximum_filter1d(np.abs(curvature(dense)), size=round(_START_STRETCH_M * per_metre), mode="wrap")
     return int(np.argmin(tightest))
-
-
-def _curvature(points: np.ndarray) -> np.ndarray:
-    d = (np.roll(points, -1, axis=0) - np.roll(points, 1, axis=0)) / 2
-    dd = np.roll(points, -1, axis=0) - 2 * points + np.roll(points, 1, axis=0)
-    return (d[:, 0] * dd[:, 1] - d[:, 1] * dd[:, 0]) / np.linalg.norm(d, axis=1) ** 3

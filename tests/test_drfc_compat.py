@@ -29,7 +29,7 @@ from sim.env import RacerEnv, preflight_reward
 from sim.physics import FRONT_POINT_M, Pose
 from sim.reward import RewardFunctionError
 from sim.task import RacingTask
-from sim.track import load_track
+from sim.track import Track, load_track
 from tests.shared_data import SHARED_TRACKS, deepracer_track_names, needs_deepracer_tracks
 
 PATTERNS = Path(__file__).parent / "data" / "reward_patterns"
@@ -136,17 +136,26 @@ def test_params_match_the_simapp_at_random_poses(name: str) -> None:
     rng = np.random.default_rng(7)
     for _ in range(60):
         s = rng.uniform(0, track.length)
-        (cx, cy), heading = track.point_at(s)
-        offset = rng.uniform(-0.6, 0.6) * track.width
-        x, y = cx - offset * math.sin(heading), cy + offset * math.cos(heading)
-        seg = int(np.searchsorted(track.cumulative, s, side="right") - 1)
-        task.begin(max(seg - 1, 0), False)
-        got = observe_front_at(task, name, x, y, heading)
-        want = simapp_params(rows, x, y)
-        assert got["closest_waypoints"] == want["closest_waypoints"]
-        assert got["track_width"] == pytest.approx(want["track_width"], abs=1e-6)
-        assert got["distance_from_center"] == pytest.approx(want["distance_from_center"], abs=1e-6)
-        assert got["is_left_of_center"] == want["is_left_of_center"]
+        assert_params_match_the_simapp(task, track, rows, s, rng.uniform(-0.6, 0.6), reverse=False)
+
+
+def assert_params_match_the_simapp(
+    task: RacingTask, line: Track, directed: np.ndarray, s: float, share: float, reverse: bool
+) -> dict:
+    """Put the car's front point ``share`` of the track width left of the centre line at ``s`` (metres along the
+    direction driven, ``line``; ``directed``: the simapp's rows in that direction) and compare the params."""
+    (cx, cy), heading = line.point_at(s)
+    offset = share * line.width
+    x, y = cx - offset * math.sin(heading), cy + offset * math.cos(heading)
+    seg = int(np.searchsorted(line.cumulative, s, side="right") - 1)
+    task.begin(max(seg - 1, 0), reverse)
+    got = observe_front_at(task, line.name, x, y, heading)
+    want = simapp_params(directed, x, y, reverse)
+    assert got["closest_waypoints"] == want["closest_waypoints"], (reverse, s)
+    assert got["track_width"] == pytest.approx(want["track_width"], abs=1e-6)
+    assert got["distance_from_center"] == pytest.approx(want["distance_from_center"], abs=1e-6)
+    assert got["is_left_of_center"] == want["is_left_of_center"]
+    return got
 
 
 @needs_deepracer_tracks
@@ -166,18 +175,8 @@ def test_every_deepracer_route_reads_as_the_simapp_reads_it_both_ways(name: str)
         directed = rows[::-1] if reverse else rows
         end = line.length if line.closed else line.length - 0.3  # an open line's last 0.3 m ends the episode
         for s in np.sort(rng.uniform(0.3 if not line.closed else 0.0, end, 12)):
-            (cx, cy), heading = line.point_at(s)
-            offset = rng.uniform(-0.45, 0.45) * line.width
-            x, y = cx - offset * math.sin(heading), cy + offset * math.cos(heading)
-            seg = int(np.searchsorted(line.cumulative, s, side="right") - 1)
-            task.begin(max(seg - 1, 0), reverse)
-            got = observe_front_at(task, name, x, y, heading)
-            want = simapp_params(directed, x, y, reverse)
+            got = assert_params_match_the_simapp(task, line, directed, s, rng.uniform(-0.45, 0.45), reverse)
             assert got["waypoints"] == [tuple(p) for p in directed[:, 0:2].tolist()]
-            assert got["closest_waypoints"] == want["closest_waypoints"], (reverse, s)
-            assert got["track_width"] == pytest.approx(want["track_width"], abs=1e-6)
-            assert got["distance_from_center"] == pytest.approx(want["distance_from_center"], abs=1e-6)
-            assert got["is_left_of_center"] == want["is_left_of_center"]
 
 
 def test_speed_and_steering_are_the_actions_values_not_the_cars_limits(tmp_path: Path) -> None:

@@ -20,8 +20,9 @@ from common.car_calibration import CalibrationError, load_car
 from common.defaults import DEFAULT_TRACK, STRAIGHT_TRACK
 from sim.car_limits import CarLimits, measure_limits
 from sim.follower import CORRIDOR_TRIES, PACE_STEP
+from sim.geometry import curvature
 from sim.physics import WHEELBASE_M
-from sim.raceline import _curvature, corridor, racing_line, speed_profile
+from sim.raceline import corridor, racing_line, speed_profile
 from sim.track import load_track
 from tests.shared_data import needs_deepracer_tracks
 
@@ -165,7 +166,7 @@ def test_the_gazebo_cars_line_uses_the_track() -> None:
     line = racing_line(track, lim)
     cor = corridor(track)
     ds = np.linalg.norm(np.roll(cor.center, -1, axis=0) - cor.center, axis=1)
-    _, centre_lap = speed_profile(ds, _curvature(cor.center), lim)
+    _, centre_lap = speed_profile(ds, curvature(cor.center), lim)
     assert np.max(np.abs(line.offsets)) > 0.3
     # racer_loop's bends are gentler than reinvent_base's, where this asked for 0.9. On racer_loop the line takes 7 %
     # off the centre line's lap, a line kept within 7 cm of the centre (the bug) 2.7 % (measured with racing_line on
@@ -181,7 +182,7 @@ def test_the_racing_line_stays_in_the_corridor_and_beats_the_centre_line(limits:
     assert line.offsets[0] == 0.0  # starts where the env puts the car
     assert np.all(line.offsets >= cor.low - 1e-9) and np.all(line.offsets <= cor.high + 1e-9)
     ds = np.linalg.norm(np.roll(cor.center, -1, axis=0) - cor.center, axis=1)
-    _, centre_lap = speed_profile(ds, _curvature(cor.center), limits)
+    _, centre_lap = speed_profile(ds, curvature(cor.center), limits)
     assert line.lap_time < 0.95 * centre_lap
     assert line.flying_lap_time < line.lap_time  # no standing start
     assert line.length < track.length  # it cuts the corners

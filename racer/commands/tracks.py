@@ -24,15 +24,15 @@ def ls() -> None:
     from sim.track_gen import racer_track_names
 
     folder = tracks_dir()
+    cached = cached_route_names(folder)
     table = Table("track", "kind", "length m", "width m", "direction", "waypoints")
-    for kind, names in (("racer", racer_track_names()), ("DeepRacer", cached_route_names(folder))):
+    for kind, names in (("racer", racer_track_names()), ("DeepRacer", cached)):
         for name in names:
             t = load_track(name if kind == "racer" else folder / f"{name}.npy")
             direction = "open" if not t.closed else ("CW" if t.clockwise else "CCW")
             table.add_row(name, kind, f"{t.length:.2f}", f"{t.width:.2f}", direction, str(len(t.center)))
     console.print(table)
-    cached = set(cached_route_names(folder))
-    missing = [n for n in deepracer_route_names() if n not in cached]
+    missing = sorted(set(deepracer_route_names()) - set(cached))
     console.print(f"track folder: {folder} (RACER_TRACKS_DIR)", highlight=False, soft_wrap=True)
     if missing:
         console.print(
