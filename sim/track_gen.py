@@ -120,8 +120,9 @@ def _loop(spec: LoopSpec) -> np.ndarray:
 
 
 def _straightest(dense: np.ndarray, length_m: float) -> int:
-    """The middle of the stretch, ``_START_STRETCH_M`` long, whose tightest bend is the gentlest: DeepRacer's start
-    lines are on straights. (The least-curved single point would be an S's inflection, inside two bends.)"""
+    """The middle of the stretch, about ``_START_STRETCH_M`` long, whose tightest bend is the gentlest: DeepRacer's
+    start lines are on straights. (The least-curved single point would be an S's inflection, inside two bends.) The
+    window counts dense samples, which are even in angle rather than arc length: 2 m on average, not exactly."""
     per_metre = len(dense) / length_m
     tightest = maximum_filter1d(np.abs(curvature(dense)), size=round(_START_STRETCH_M * per_metre), mode="wrap")
     return int(np.argmin(tightest))
