@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from common.car_calibration import CarCalibration
 from common.defaults import DEFAULT_TRACK
@@ -160,6 +160,35 @@ class EnvConfig(_Strict):
     penalties (``common/race.py``)."""
 
 
+class WorkerEnv(_Strict):
+    """What one rollout worker changes in the run's env (DRfC's ``worker-N.env``); None = the run's own.
+
+    The network, the reward function and the action space are the run's: only the world a worker drives in
+    differs, as in DRfC's multi-config training (``scripts/training/prepare-config.py`` writes per worker the
+    world, race type, start and direction settings and the race's obstacles and bot cars)."""
+
+    track: str | None = None
+    """The worker's track (a name or a .npy path)."""
+    race: RaceConfig | None = None
+    """The worker's race type with its obstacles and bot cars."""
+    randomization: RandomizationConfig | None = None
+    """The worker's domain randomization, start positions and driving direction."""
+
+    def apply(self, env: EnvConfig) -> EnvConfig:
+        """``env`` with this worker's settings in place of the run's."""
+        update = {name: getattr(self, name) for name in ("track", "race", "randomization")}
+        return env.model_copy(update={k: v for k, v in update.items() if v is not None})
+
+    def describe(self) -> str:
+        """One line of what differs from the run (``run's env`` when nothing does)."""
+        parts = [f"track {self.track}"] if self.track else []
+        if self.race is not None:
+            parts.append(f"race {self.race.race_type.value}")
+        if self.randomization is not None:
+            parts.append("own randomization")
+        return ", ".join(parts) or "the run's env"
+
+
 class PretrainedError(UserError, ValueError):
     """A run's ``pretrained`` source it cannot start from (missing, another action space, other network shapes);
     the one-line message names the source and what differs. Raised before start and by the trainer's load."""
@@ -178,8 +207,9 @@ class RunConfig(_Strict):
     """DeepRacer's hyperparameters.json (plus racer's PPO knobs)."""
     policy: PolicyConfig = Field(default_factory=PolicyConfig)
     """The network."""
-    worker_tracks: list[str] = Field(default_factory=list)
-    """Multi-track training: worker k drives worker_tracks[k % len]; empty = every worker on env.track."""
+    worker_envs: list[WorkerEnv] = Field(default_factory=list)
+    """Per-worker worlds (``--worker-track``, ``--worker-config``, DRfC's DR_TRAIN_MULTI_CONFIG): worker k drives
+    ``worker_envs[k % len]`` applied to ``env``; empty = every worker in ``env``. The evaluator drives ``env``."""
     segment_steps: int = Field(32, ge=1, le=4096)
     """Env steps per segment pushed to Redis."""
     max_policy_lag: int = Field(0, ge=0)
@@ -196,3 +226,21 @@ class RunConfig(_Strict):
     pretrained: str | None = Field(None, pattern=r"^[A-Za-z0-9._-]+:(best|latest|[0-9]+)$")
     """Start from another run's weights, ``RUN:CHECKPOINT`` (best, latest or a version) in the same store: DRfC's
     pretrained model, the console's clone. The optimizer starts fresh; the action space must be the same."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _worker_tracks(cls, data: object) -> object:
+        """A config.json written before per-worker configurations had ``worker_tracks`` (names only): read it as
+        the same worlds, so such a run still resumes."""
+        if isinstance(data, dict) and "worker_tracks" in data:
+            data = dict(data)
+            tracks = data.pop("worker_tracks") or []
+            if "worker_envs" not in data and isinstance(tracks, list):
+                data["worker_envs"] = [{"track": t} for t in tracks]
+        return data
+
+    def worker_env(self, index: int) -> EnvConfig:
+        """The env rollout worker ``index`` (0-based) drives."""
+        if not self.worker_envs:
+            return self.env
+        return self.worker_envs[index % len(self.worker_envs)].apply(self.env)

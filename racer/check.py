@@ -85,6 +85,7 @@ def check_files(inputs: UserFiles) -> list[str]:
         inputs.reward_fn,
         inputs.action_space,
         inputs.hyperparams,
+        worker_settings=list(inputs.drfc.worker_settings) if inputs.drfc else None,
         notes=notes,
         randomization_update=inputs.randomization,
         race=inputs.race,
@@ -102,6 +103,8 @@ def check_files(inputs: UserFiles) -> list[str]:
         f"stops after {hp.term_cond_max_episodes} policy updates",
     ]
     lines.append(f"race: {race_line(run.env.race)}")
+    for k, worker in enumerate(run.worker_envs):
+        lines.append(f"worker {k + 1}: {worker.describe()}")
     lines += notes
     lines += drfc_lines(inputs.drfc)
     return lines

@@ -59,6 +59,10 @@ class DrfcImport:
     """DR_WORLD_NAME names a track racer does not ship: the error to raise unless --track is given."""
     race: RaceConfig | None = None
     """The race of DR_RACE_TYPE, DR_OA_*, DR_H2B_* and the evaluation penalties (None: none of them set)."""
+    multi_config: bool = False
+    """DR_TRAIN_MULTI_CONFIG: workers 2..N read their own ``worker-N.env``."""
+    worker_settings: list[WorkerSettings | None] = field(default_factory=list)
+    """Per worker (index 0 = DRfC's worker 1, which drives run.env) what its worker-N.env changes."""
 
 
 _VAR = re.compile(r"\$(?:\{([A-Za-z_][A-Za-z0-9_]*)\}|([A-Za-z_][A-Za-z0-9_]*))")
@@ -124,6 +128,14 @@ def import_drfc(folder: str | Path) -> DrfcImport:
         raise DrfcError(
             f"DRfC folder {str(root)!r} holds none of {', '.join(CUSTOM_FILES)}, run.env (also looked in custom_files/)"
         )
+    _apply(out, env)
+    if out.multi_config and (out.workers or 1) > 1:
+        out.worker_settings = _multi_config(root, env, out.workers or 1)
+    return out
+
+
+def _apply(out: DrfcImport, env: dict[str, tuple[str, Path]]) -> None:
+    """Map each variable of ``env`` (value, file) into ``out``."""
     for key, (value, path) in env.items():
         handler = _HANDLERS.get(key)
         if handler is None:
@@ -135,7 +147,10 @@ def import_drfc(folder: str | Path) -> DrfcImport:
             out.mapped[key] = meaning
     _finish_start_positions(out, env)
     _finish_race(out, env)
-    return out
+    if out.randomization.get("reverse_prob") and out.randomization.get("alternate_direction"):
+        value, path = env["DR_TRAIN_REVERSE_DIRECTION"]
+        where = _Where(path, "DR_TRAIN_REVERSE_DIRECTION", value)
+        raise where.error("racer's alternation starts forward; unset DR_TRAIN_ALTERNATE_DRIVING_DIRECTION or this")
 
 
 @dataclass(frozen=True)
@@ -258,6 +273,20 @@ def _alternate(out: DrfcImport, value: str, where: _Where) -> str:
     return f"alternate_direction {out.randomization['alternate_direction']}"
 
 
+def _reverse(out: DrfcImport, value: str, where: _Where) -> str:
+    # The simapp's REVERSE_DIR is the first episode's direction, which alternate_driving_direction then flips
+    # (track_data.py, rollout_agent_ctrl.py); racer's alternation always starts forward, so the pair is refused.
+    if not _bool(where):
+        return ""
+    out.randomization["reverse_prob"] = 1.0
+    return "reverse_prob 1 (every episode driven in reverse)"
+
+
+def _multi(out: DrfcImport, value: str, where: _Where) -> str:
+    out.multi_config = _bool(where)
+    return "per-worker configurations from worker-N.env" if out.multi_config else ""
+
+
 def _noted(out: DrfcImport, value: str, where: _Where) -> str:
     _bool(where) if where.key == "DR_TRAIN_CHANGE_START_POSITION" else _number(where, float, 0.0, 1.0)
     return "start positions (below)"
@@ -280,6 +309,8 @@ _HANDLERS = {
     "DR_LOCAL_S3_MODEL_PREFIX": _model_prefix,
     "DR_EVAL_NUMBER_OF_TRIALS": _eval_trials,
     "DR_TRAIN_ALTERNATE_DRIVING_DIRECTION": _alternate,
+    "DR_TRAIN_REVERSE_DIRECTION": _reverse,
+    "DR_TRAIN_MULTI_CONFIG": _multi,
     "DR_TRAIN_CHANGE_START_POSITION": _noted,
     "DR_TRAIN_ROUND_ROBIN_ADVANCE_DIST": _noted,
     "DR_LOCAL_S3_PRETRAINED": _pretrained,
@@ -342,3 +373,82 @@ def _finish_race(out: DrfcImport, env: dict[str, tuple[str, Path]]) -> None:
     if race.bot_car_count:
         summary += f", {race.bot_car_count} bot cars at {race.head_to_bot.bot_car_speed:g} m/s"
     out.mapped["DR_RACE_TYPE"] = f"race {summary}"
+
+
+@dataclass
+class WorkerSettings:
+    """What one worker's DRfC env file changes (None = the run's): the parts of ``common.config.WorkerEnv`` that
+    can be read without the run's own randomization, which ``randomization`` updates."""
+
+    source: Path
+    track: str | None = None
+    race: RaceConfig | None = None
+    randomization: dict[str, Any] | None = None
+    """RandomizationConfig fields to set on the run's randomization for this worker."""
+    unmapped: list[str] = field(default_factory=list)
+
+
+_RANDOMIZATION_KEYS = (
+    "DR_TRAIN_ALTERNATE_DRIVING_DIRECTION",
+    "DR_TRAIN_CHANGE_START_POSITION",
+    "DR_TRAIN_ROUND_ROBIN_ADVANCE_DIST",
+    "DR_TRAIN_REVERSE_DIRECTION",
+)
+_RACE_KEYS = ("DR_RACE_TYPE", *_RACE_NUMBERS, *_RACE_BOOLS, *_RACE_TEXT)
+PER_WORKER_KEYS = frozenset(
+    (
+        "DR_WORLD_NAME",
+        *_RACE_KEYS,
+        *_RANDOMIZATION_KEYS,
+        "DR_ENABLE_DOMAIN_RANDOMIZATION",
+        "DR_TRAIN_START_POSITION_OFFSET",
+        "DR_CAR_COLOR",
+        "DR_CAR_BODY_SHELL_TYPE",
+        "DR_CAMERA_MAIN_ENABLE",
+        "DR_CAMERA_SUB_ENABLE",
+        "DR_ENABLE_EXTRA_KVS_OVERLAY",
+    )
+)
+"""The variables DRfC's ``scripts/training/prepare-config.py`` writes per worker with DR_TRAIN_MULTI_CONFIG; a
+worker file's other variables are not used by DRfC, nor by racer."""
+
+
+def read_worker_settings(path: Path, base: dict[str, tuple[str, Path]] | None = None) -> WorkerSettings:
+    """One worker's env file (DRfC's ``worker-N.env`` form) read over the variables ``base`` (value, file) already
+    set. A field is set only where the file sets one of its variables, so a run's ``--track`` or ``--race`` holds
+    for the worker unless its file says otherwise."""
+    base = dict(base or {})
+    known = {k: v for k, (v, _) in base.items()}
+    own = {k: (v, path) for k, v in read_env_file(path, known).items()}
+    merged = {k: item for k, item in {**base, **own}.items() if k in PER_WORKER_KEYS}
+    worker = DrfcImport(folder=path.parent)
+    _apply(worker, merged)
+    if worker.track_error is not None and "DR_WORLD_NAME" in own:
+        raise worker.track_error
+    settings = WorkerSettings(source=path, unmapped=sorted(k for k in worker.unmapped if k in own))
+    settings.unmapped += sorted(k for k in own if k not in PER_WORKER_KEYS and k.startswith("DR_"))
+    if "DR_WORLD_NAME" in own:
+        settings.track = worker.track
+    if any(k in own for k in _RACE_KEYS):
+        settings.race = worker.race
+    if any(k in own for k in _RANDOMIZATION_KEYS):
+        settings.randomization = dict(worker.randomization)
+    return settings
+
+
+def _multi_config(root: Path, env: dict[str, tuple[str, Path]], workers: int) -> list[WorkerSettings | None]:
+    """Workers 2..N's ``worker-N.env`` beside ``run.env``, read as DRfC's prepare-config.py reads them: each file
+    updates the variables the previous workers' files left (they accumulate), worker 1 drives ``run.env``."""
+    settings: list[WorkerSettings | None] = [None]
+    merged = dict(env)
+    for number in range(2, workers + 1):
+        path = _find(root, f"worker-{number}.env")
+        if path is None:
+            raise DrfcError(
+                f"DRfC folder {str(root)!r}: DR_TRAIN_MULTI_CONFIG is True with {workers} workers but "
+                f"worker-{number}.env is missing"
+            )
+        settings.append(read_worker_settings(path, merged))
+        known = {k: v for k, (v, _) in merged.items()}
+        merged.update({k: (v, path) for k, v in read_env_file(path, known).items()})
+    return settings

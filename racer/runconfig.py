@@ -7,6 +7,8 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from common.action_space import ActionSpace, default_action_space, load_action_space
 from common.car_calibration import CarCalibration, load_car
 from common.config import (
@@ -15,14 +17,16 @@ from common.config import (
     PretrainedError,
     RandomizationConfig,
     RunConfig,
+    WorkerEnv,
     network_from_metadata,
 )
 from common.defaults import DEFAULT_TRACK
-from common.errors import OptionError, UserError
+from common.errors import OptionError, UserError, first_validation_error
 from common.hyperparams import Hyperparameters, HyperparametersError, load_hyperparameters
 from common.jsonfile import load_json_model
 from common.race import RaceConfig, RaceType
 from model_store import RunStore, StoreError
+from racer.drfc import DrfcImport, WorkerSettings, read_worker_settings
 from sim.env import preflight_reward
 from sim.reward import example_path
 from sim.track import load_track
@@ -45,7 +49,7 @@ def build_run(
     action_space: str | None = None,
     hyperparams: str | None = None,
     randomization: str | None = None,
-    worker_tracks: list[str] | None = None,
+    worker_settings: list[WorkerSettings | None] | None = None,
     seed: int = 0,
     car_calibration: str | None = None,
     notes: list[str] | None = None,
@@ -55,11 +59,10 @@ def build_run(
     """Validate the user's files now (before any process starts) and build the run's config and files.
 
     ``notes`` (if given) collects one line per thing in the files that racer accepts but does not use;
-    ``randomization_update`` sets RandomizationConfig fields (from a DRfC run.env).
+    ``randomization_update`` sets RandomizationConfig fields (from a DRfC run.env); ``worker_settings`` gives each
+    worker's own world (None: the run's).
     """
     load_track(track)
-    for t in worker_tracks or []:
-        load_track(t)
     reward_path = Path(reward_fn) if reward_fn else example_path("default")
     actions = load_action_space(action_space) if action_space else default_action_space()
     hp = load_hyperparameters(hyperparams) if hyperparams else Hyperparameters()
@@ -76,7 +79,12 @@ def build_run(
     )
     # A broken reward function fails here, naming the user's file, before any process starts. The check drives a
     # throwaway env (its own copy of the reward module) on the run's track, so nothing it caches reaches training.
-    preflight_reward(env.model_copy(update={"reward_fn": str(reward_path), "action_space": action_space}))
+    user_files = {"reward_fn": str(reward_path), "action_space": action_space}
+    preflight_reward(env.model_copy(update=user_files))
+    workers = worker_envs(env, worker_settings or [], notes)
+    for worker in {w.model_dump_json(): w for w in workers if w.track or w.race}.values():
+        # Each world a worker drives is checked as the run's is: its track loads, its race fits, the reward runs.
+        preflight_reward(worker.apply(env).model_copy(update=user_files))
     if hp.greedy_action != "mean" and actions.discrete:
         # Nothing is accepted that racer cannot honour: a discrete policy acts greedily by its argmax.
         raise HyperparametersError(
@@ -86,13 +94,123 @@ def build_run(
     policy = PolicyConfig(
         network=network_from_metadata(actions.neural_network), stack_size=hp.stack_size, greedy_action=hp.greedy_action
     )
-    run = RunConfig(run_id=run_id, env=env, hyperparams=hp, policy=policy, worker_tracks=worker_tracks or [], seed=seed)
+    run = RunConfig(run_id=run_id, env=env, hyperparams=hp, policy=policy, worker_envs=workers, seed=seed)
     files = {
         "reward_function.py": reward_path.read_bytes(),
         "model_metadata.json": actions.to_json().encode(),
         "hyperparameters.json": hp.to_json().encode(),
     }
     return run, files
+
+
+def worker_envs(env: EnvConfig, settings: list[WorkerSettings | None], notes: list[str] | None) -> list[WorkerEnv]:
+    """Each worker's world from what its file changes (None: the run's ``env``); a track that does not load or a
+    randomization the run's cannot take is a one-line error naming the worker's file."""
+    out: list[WorkerEnv] = []
+    for item in settings:
+        if item is None:
+            out.append(WorkerEnv())
+            continue
+        try:
+            if item.track:
+                load_track(item.track)
+            randomization = None
+            if item.randomization is not None:
+                merged = {**env.randomization.model_dump(), **item.randomization}
+                randomization = RandomizationConfig.model_validate(merged)
+        except ValidationError as exc:
+            reason = f"randomization.{first_validation_error(exc)}"
+            raise WorkerConfigError(f"worker config {str(item.source)!r}: {reason}") from None
+        except (ValueError, UserError) as exc:
+            raise WorkerConfigError(f"worker config {str(item.source)!r}: {str(exc).splitlines()[0]}") from None
+        out.append(WorkerEnv(track=item.track, race=item.race, randomization=randomization))
+        if notes is not None and item.unmapped:
+            notes.append(f"{item.source}: no racer meaning, not used: {', '.join(item.unmapped)}")
+    return out if any(w != WorkerEnv() for w in out) else []
+
+
+class WorkerConfigError(UserError, ValueError):
+    """A per-worker configuration racer cannot use; the one-line message names the file or option and the value."""
+
+
+def parse_worker_configs(values: list[str], workers: int | None) -> list[WorkerSettings | None]:
+    """``--worker-config`` values: ``N=FILE`` (worker N, from 1 as in DRfC, drives the world of a DRfC-style
+    ``worker-N.env``, each file over the run's settings), or one YAML/JSON file holding a list (entry i is worker
+    i+1: null, or a mapping of ``track``, ``race`` (``common/race.py: RaceConfig``) and ``randomization`` fields set
+    on the run's). ``workers`` (None: not known here, as in ``racer trainer``) bounds N."""
+    if len(values) == 1 and "=" not in values[0]:
+        settings = _worker_list(Path(values[0]))
+    else:
+        numbered: dict[int, WorkerSettings] = {}
+        for value in values:
+            number, sep, file = value.partition("=")
+            if not sep or not number.strip().isdigit() or not file:
+                raise OptionError(f"--worker-config {value!r}: expected N=FILE (worker-2.env) or one YAML list file")
+            n = int(number)
+            if n < 1 or (workers is not None and n > workers):
+                raise OptionError(f"--worker-config {value!r}: worker {n} is not one of 1..{workers} (--workers)")
+            numbered[n] = read_worker_settings(_existing(Path(file), value))
+        settings = [numbered.get(n) for n in range(1, (workers or max(numbered)) + 1)]
+    if workers is not None and len(settings) > workers:
+        raise OptionError(f"--worker-config: {len(settings)} worker entries for {workers} workers (--workers)")
+    return settings
+
+
+def worker_settings(
+    tracks: list[str] | None, configs: list[str] | None, workers: int | None, drfc: DrfcImport | None
+) -> list[WorkerSettings | None]:
+    """Each worker's world from ``--worker-track``, ``--worker-config`` or a DRfC folder's multi-config, one of them
+    (options win over the folder; the two options together are refused, as they would say it twice)."""
+    if tracks and configs:
+        raise OptionError("--worker-track and --worker-config both set each worker's track: give one of them")
+    if configs:
+        return parse_worker_configs(configs, workers)
+    if tracks:
+        return [WorkerSettings(source=Path("--worker-track"), track=t) for t in tracks]
+    return list(drfc.worker_settings) if drfc is not None else []
+
+
+def _existing(path: Path, value: str) -> Path:
+    if not path.is_file():
+        raise OptionError(f"--worker-config {value!r}: {str(path)!r} is not a file")
+    return path
+
+
+def _worker_list(path: Path) -> list[WorkerSettings | None]:
+    import yaml
+
+    try:
+        data = yaml.safe_load(_existing(path, str(path)).read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise WorkerConfigError(f"worker config {str(path)!r}: {str(exc).splitlines()[0]}") from None
+    if not isinstance(data, list):
+        raise WorkerConfigError(f"worker config {str(path)!r}: expected a list (entry i is worker i+1)")
+    return [_worker_entry(path, i, entry) for i, entry in enumerate(data)]
+
+
+_ENTRY_KEYS = ("track", "race", "randomization")
+
+
+def _worker_entry(path: Path, index: int, entry: object) -> WorkerSettings | None:
+    """Entry ``index`` of a worker list file as WorkerSettings; errors name the file, the entry and the key."""
+    if entry is None or entry == {}:
+        return None
+    where = f"worker config {str(path)!r} entry {index + 1}"
+    if not isinstance(entry, dict):
+        raise WorkerConfigError(f"{where}: expected a mapping of {', '.join(_ENTRY_KEYS)}, got {entry!r}")
+    unknown = sorted(set(entry) - set(_ENTRY_KEYS))
+    if unknown:
+        raise WorkerConfigError(f"{where}: unknown key {unknown[0]!r} (expected {', '.join(_ENTRY_KEYS)})")
+    track, race, randomization = entry.get("track"), entry.get("race"), entry.get("randomization")
+    if track is not None and not isinstance(track, str):
+        raise WorkerConfigError(f"{where}: track {track!r} is not a name or a path")
+    if randomization is not None and not isinstance(randomization, dict):
+        raise WorkerConfigError(f"{where}: randomization {randomization!r} is not a mapping")
+    try:
+        race_cfg = RaceConfig.model_validate(race) if race is not None else None
+    except ValidationError as exc:
+        raise WorkerConfigError(f"{where}: race: {first_validation_error(exc)}") from None
+    return WorkerSettings(source=path, track=track, race=race_cfg, randomization=randomization)
 
 
 class RandomizationFileError(UserError, ValueError):
@@ -171,7 +289,8 @@ class NewRun:
     """A randomization JSON file."""
     randomization_update: dict = field(default_factory=dict)
     """RandomizationConfig fields set on top (from a DRfC run.env)."""
-    worker_tracks: list[str] = field(default_factory=list)
+    worker_settings: list[WorkerSettings | None] = field(default_factory=list)
+    """Each worker's own world (``--worker-track``, ``--worker-config``, DRfC's multi-config); None: the run's."""
     seed: int = 0
     car: str | None = None
     """A car preset's name or a car.json (None: the default car)."""
@@ -202,7 +321,7 @@ def open_run(runs: RunStore, run_id: str, new: NewRun | None) -> tuple[RunConfig
         new.action_space,
         new.hyperparams,
         new.randomization,
-        new.worker_tracks,
+        new.worker_settings,
         new.seed,
         new.car,
         notes=notes,

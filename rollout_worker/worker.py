@@ -47,7 +47,7 @@ class WorkerOptions:
     store: str = "."
     s3_endpoint: str | None = None
     worker_index: int | None = 0
-    """Index k: seeds the env with run seed + 1000·k, picks worker_tracks[k % len] and names the sim-trace folder.
+    """Index k: seeds the env with run seed + 1000·k, drives the run's worker_env(k) and names the sim-trace folder.
     None = take the next free index from Redis (scaled compose workers share one set of options)."""
     worker_id: str = ""
     """Name in heartbeats and segments; default ``{host}-{pid}-{index}``."""
@@ -116,10 +116,8 @@ class RolloutWorker:
         self._ep_reward = 0.0
 
     def _env_config(self) -> EnvConfig:
-        """The run's env (reward function and action space from the store), on this worker's track."""
-        tracks = self.run.worker_tracks
-        track = tracks[self.opts.worker_index % len(tracks)] if tracks else None
-        return localize_env(self.run, self.runs, Path(self._workdir.name), track)
+        """The run's env (reward function and action space from the store), in this worker's own world."""
+        return localize_env(self.run, self.runs, Path(self._workdir.name), self.opts.worker_index)
 
     def _wait_for_policy(self) -> PolicyVersion:
         deadline = time.monotonic() + self.opts.policy_wait_s

@@ -75,6 +75,13 @@ RaceFile = Annotated[
         "--race", help="JSON of race settings: obstacles, bot cars, evaluation penalties (docs/object-avoidance.md)."
     ),
 ]
+WorkerConfig = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--worker-config",
+        help="Worker N's own world: N=FILE (a DRfC worker-N.env, N from 1), repeated; or one YAML list file.",
+    ),
+]
 Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")]
 
 

@@ -9,7 +9,18 @@ from typing import Annotated
 import typer
 
 from common.defaults import DEFAULT_TRACK
-from racer.commands.options import Endpoint, Outage, Redis, RunId, Store, Verbose, console, json_option, write_json
+from racer.commands.options import (
+    Endpoint,
+    Outage,
+    Redis,
+    RunId,
+    Store,
+    Verbose,
+    WorkerConfig,
+    console,
+    json_option,
+    write_json,
+)
 
 
 def trainer(
@@ -38,6 +49,7 @@ def trainer(
             help="PPO update arithmetic: auto (the faster of fp32 and native bf16, timed), fp32, bf16.",
         ),
     ] = "auto",
+    worker_config: WorkerConfig = None,
     outage_timeout: Outage = "10m",
     verbose: Verbose = False,
 ) -> None:
@@ -45,7 +57,7 @@ def trainer(
     from common.config import check_precision
     from model_store import RunStore, open_store
     from racer.lifecycle import setup_logging, stop_event_on_signals
-    from racer.runconfig import NewRun, load_race, parse_duration, trainer_role_run
+    from racer.runconfig import NewRun, load_race, parse_duration, trainer_role_run, worker_settings
     from trainer.process import TrainerOptions, run_trainer
 
     setup_logging(verbose)
@@ -59,6 +71,7 @@ def trainer(
         action_space=str(action_space) if action_space else None,
         hyperparams=str(hyperparams) if hyperparams else None,
         race=load_race(race, race_type),
+        worker_settings=worker_settings(None, worker_config, None, None),
     )
     run, run_files, resume = trainer_role_run(runs, run_id, config, files, resume, new)
     opts = TrainerOptions(

@@ -18,6 +18,7 @@ from racer.commands.options import (
     RaceTypeOpt,
     RewardFn,
     Store,
+    WorkerConfig,
     console,
 )
 
@@ -36,7 +37,10 @@ def train(
     action_space: ActionSpace = None,
     hyperparams: Hyperparams = None,
     randomization: Annotated[Path | None, typer.Option(help="JSON of domain randomization settings.")] = None,
-    worker_track: Annotated[list[str] | None, typer.Option("--worker-track", help="Per-worker tracks.")] = None,
+    worker_track: Annotated[
+        list[str] | None, typer.Option("--worker-track", help="Per-worker tracks: worker k drives the k-th (cycling).")
+    ] = None,
+    worker_config: WorkerConfig = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the run from its latest checkpoint.")] = False,
     seed: Annotated[int, typer.Option(help="Base random seed.")] = 0,
     car_calibration: Car = None,
@@ -68,7 +72,7 @@ def train(
     from model_store import RunStore, open_store
     from racer.check import drfc_lines, merge_inputs
     from racer.launcher import TrainOptions, new_run_id, run_summary, run_train
-    from racer.runconfig import NewRun, load_race, open_run, parse_duration
+    from racer.runconfig import NewRun, load_race, open_run, parse_duration, worker_settings
 
     limit = parse_duration(time_limit) if time_limit else None
     check_precision(precision)
@@ -85,7 +89,7 @@ def train(
         hyperparams=inputs.hyperparams,
         randomization=str(randomization) if randomization else None,
         randomization_update=inputs.randomization,
-        worker_tracks=worker_track or [],
+        worker_settings=worker_settings(worker_track, worker_config, workers, inputs.drfc),
         seed=seed,
         car=str(car_calibration) if car_calibration else None,
         max_policy_lag=max_policy_lag,
