@@ -279,10 +279,10 @@ def load_hyperparameters(path: str | Path) -> Hyperparameters:
     where = f"hyperparameters file {str(p)!r}"
     data = read_json_object(p, "hyperparameters file", HyperparametersError)
     unread = [key for key in data if key not in Hyperparameters.model_fields]
-    for key in unread:
-        meant = _resembles(key)
-        if meant:
-            raise HyperparametersError(f"{where}: unknown key {key!r} (did you mean {meant!r}?)")
+    # Every misspelt key in the one error, so a file with several is fixed in one try.
+    misspelt = [f"unknown key {key!r} (did you mean {meant!r}?)" for key in unread if (meant := _resembles(key))]
+    if misspelt:
+        raise HyperparametersError(f"{where}: {'; '.join(misspelt)}")
     try:
         hp = Hyperparameters.model_validate({k: v for k, v in data.items() if k not in unread})
     except ValidationError as exc:

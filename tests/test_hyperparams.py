@@ -226,6 +226,12 @@ def test_a_key_that_looks_misspelt_is_refused_naming_the_key_it_resembles(tmp_pa
     assert f"unknown key {key!r} (did you mean {meant!r}?)" in message
 
 
+def test_every_misspelt_key_is_named_in_the_one_error(tmp_path: Path) -> None:
+    message = _error(tmp_path, json.dumps(DEEPRACER_FILE | {"learning_rate": 1e-4, "batchsize": 32}))
+    assert "'learning_rate' (did you mean 'lr'?)" in message and "'batchsize' (did you mean 'batch_size'?)" in message
+    assert "\n" not in message
+
+
 # --- racer's stability knobs ---------------------------------------------------------------------------
 
 STABILITY_FILE = {
