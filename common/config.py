@@ -58,8 +58,16 @@ def network_from_metadata(name: str) -> NetworkName:
         raise ValueError(f"unknown neural_network {name!r}; expected one of {sorted(_METADATA_NETWORKS)}") from None
 
 
-PRECISIONS = ("auto", "fp32", "bf16")
-"""The trainer's PPO update arithmetic: auto (bf16 where native), fp32, or a bf16 trunk."""
+PRECISIONS = ("auto", "fp32", "bf16", "fp16")
+"""The trainer's PPO update arithmetic: auto (on a CPU the faster of fp32 and native bf16; on a GPU bf16, or fp16
+where it has no bf16), fp32, a bf16 trunk, or an fp16 trunk with loss scaling (GPU only): ``trainer/precision.py``."""
+
+
+PRECISION_HELP = (
+    "The trainer's PPO update arithmetic (its trunk; weights, heads, losses and Adam stay fp32): auto (on a CPU the "
+    "faster of fp32 and native bf16, timed on the first batch; on a GPU bf16 autocast, or fp16 where the GPU has no "
+    "bf16), fp32, bf16 (autocast), fp16 (autocast with loss scaling; GPU only)."
+)
 
 
 def check_precision(precision: str) -> str:

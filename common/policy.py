@@ -48,6 +48,7 @@ checkpoint's network for acting (the evaluator, ``racer eval``, ``racer export``
 
 from __future__ import annotations
 
+import copy
 import io
 import math
 import pickle
@@ -71,7 +72,7 @@ if TYPE_CHECKING:
     from common.config import RunConfig
     from model_store.runs import RunStore
 
-Precision = Literal["fp32", "bf16"]
+Precision = Literal["fp32", "bf16", "fp16"]
 ActionKind = Literal["discrete", "continuous"]
 
 HIDDEN = 512
@@ -209,7 +210,7 @@ class ActorCritic(nn.Module):
         self.value_head = _init(nn.Linear(self.hidden, 1), 1.0)
         self.action_dim = self._build_policy_head(n_actions, action_low, action_high)
         self.trunk_dtype: torch.dtype | None = None
-        """None = float32; torch.bfloat16 = the trunk under autocast (``set_trunk_precision``)."""
+        """None = float32; torch.bfloat16 or torch.float16 = the trunk under autocast (``set_trunk_precision``)."""
 
     def _build_policy_head(
         self, n_actions: int | None, low: tuple[float, ...] | None, high: tuple[float, ...] | None
@@ -241,14 +242,17 @@ class ActorCritic(nn.Module):
         return len(low)
 
     def set_trunk_precision(self, precision: Precision) -> None:
-        """Run the convolutions and the dense layer in ``bf16`` (autocast: the weights stay float32) or ``fp32``.
+        """Run the convolutions and the dense layer in ``bf16`` or ``fp16`` (autocast on the input's device: the
+        weights stay float32) or ``fp32``.
 
         The heads, the distributions and the losses stay float32 either way: bf16's 8-bit mantissa is fine for
-        features but would put ~0.4 % noise on the logits, hence on PPO's probability ratios.
+        features but would put ~0.4 % noise on the logits, hence on PPO's probability ratios. fp16's gradients need
+        loss scaling (``trainer.precision.grad_scaler``); it is meant for GPUs without bf16.
         """
-        if precision not in ("fp32", "bf16"):
-            raise ValueError(f"precision must be 'fp32' or 'bf16', got {precision!r}")
-        self.trunk_dtype = torch.bfloat16 if precision == "bf16" else None
+        dtypes = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
+        if precision not in dtypes:
+            raise ValueError(f"precision must be 'fp32', 'bf16' or 'fp16', got {precision!r}")
+        self.trunk_dtype = dtypes[precision]
 
     def features(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> torch.Tensor:
         """The trunk's ``hidden`` features (float32) of a uint8 (B, H, W, C) batch and, for a network with a LiDAR, its
@@ -368,10 +372,14 @@ def censored_mean(mean: torch.Tensor, std: torch.Tensor, low: torch.Tensor, high
 
 
 def bf16_is_fast(device: str = "cpu") -> bool:
-    """True where bf16 matrix kernels run natively (AVX512-BF16 or AMX on a CPU; any recent GPU), so that a bf16
-    trunk is faster than fp32. Elsewhere bf16 is emulated on the CPU and slower."""
+    """True where bf16 matrix kernels run natively (AVX512-BF16 or AMX on a CPU; a CUDA GPU of compute capability 8
+    or more for ``cuda`` / ``cuda:N``), so that a bf16 trunk is faster than fp32. Elsewhere bf16 is emulated, and
+    slower."""
     if device.startswith("cuda"):
-        return torch.cuda.is_available() and torch.cuda.is_bf16_supported()
+        if not torch.cuda.is_available():
+            return False
+        with torch.cuda.device(torch.device(device)):  # is_bf16_supported asks the current device
+            return torch.cuda.is_bf16_supported(including_emulation=False)
     # torch.cpu's checks are private but stable since 2.3; without them, assume emulation (fp32 is then faster).
     native = (
         getattr(torch.cpu, "_is_avx512_bf16_supported", lambda: False)()
@@ -412,10 +420,26 @@ def action_space_spec(space: Any) -> dict[str, Any]:
 
 
 def state_dict_to_bytes(sd: dict[str, Any]) -> bytes:
-    """A state dict as ``torch.save`` bytes."""
+    """A state dict as ``torch.save`` bytes, every tensor on the CPU (one trained on a GPU loads anywhere)."""
     buf = io.BytesIO()
-    torch.save(sd, buf)
+    torch.save(on_cpu(sd), buf)
     return buf.getvalue()
+
+
+def on_cpu(value: Any) -> Any:
+    """``value`` with every tensor in it (in nested dicts and lists) on the CPU. CPU tensors stay the same objects
+    and a dict keeps its type and attributes (a module's state dict carries ``_metadata``), so CPU state dicts
+    save to the very bytes they did before."""
+    if isinstance(value, torch.Tensor):
+        return value.cpu()
+    if isinstance(value, dict):
+        out = copy.copy(value)
+        for key, item in value.items():
+            out[key] = on_cpu(item)
+        return out
+    if isinstance(value, list):
+        return [on_cpu(item) for item in value]
+    return value
 
 
 def state_dict_from_bytes(data: bytes) -> dict[str, Any]:
@@ -476,13 +500,15 @@ def load_policy(
     checkpoint: int | str,
     *,
     frame: tuple[int, int] = (FRAME_HEIGHT, FRAME_WIDTH),
+    device: torch.device | str = "cpu",
 ) -> tuple[ActorCritic, dict[str, Any]]:
     """A stored checkpoint's network, ready to act, and the checkpoint's metadata.
 
     ``run`` is the run's config or its id (its config.json is then read); ``actions`` the action space the network
     acts in, whose ``sensor`` list gives its inputs; ``checkpoint`` a version, ``"latest"`` or ``"best"``; ``frame``
     the (height, width) of the camera frames it takes (DeepRacer's by default; the frame stack comes from the run's
-    hyperparameters). The network is in eval mode, on the CPU.
+    hyperparameters). The network is in eval mode, on ``device`` (the CPU unless asked: the weights are read onto the
+    CPU, then moved).
     StoreKeyError if the run or checkpoint is missing; CheckpointError if the bytes are not a checkpoint.
     """
     if isinstance(run, str):
@@ -493,7 +519,7 @@ def load_policy(
     load_weights(
         model, checkpoint_from_bytes(payload)[0], f"run {run.run_id} checkpoint {meta.get('version', checkpoint)}"
     )
-    model.eval()
+    model.to(device).eval()
     return model, meta
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import tempfile
 from pathlib import Path
-from typing import get_args
+from typing import TYPE_CHECKING, get_args
 
 from common.action_space import ActionSpace
 from common.car_calibration import load_car
@@ -15,7 +15,11 @@ from common.hyperparams import GreedyAction
 from common.simtrace import SimTraceRecorder
 from model_store import RunStore, open_store
 from model_store.localize import localize_env
+from trainer.device import resolve_device
 from trainer.evaluator import EvalSettings, evaluate_checkpoint
+
+if TYPE_CHECKING:
+    import torch
 
 
 def run_eval(
@@ -32,9 +36,12 @@ def run_eval(
     car_calibration: str | Path | None = None,
     resets: bool = True,
     greedy_action: str | None = None,
+    device: str = "auto",
 ) -> dict:
     """Evaluate and return the record (summary and trials); optionally write a sim-trace CSV and a video.
-    ``greedy_action`` (None: the run's) sets how a continuous policy acts (``Hyperparameters.greedy_action``)."""
+    ``greedy_action`` (None: the run's) sets how a continuous policy acts (``Hyperparameters.greedy_action``);
+    ``device`` where the network acts (``trainer.device``)."""
+    on = resolve_device(device)
     runs = RunStore(open_store(store, s3_endpoint))
     run = runs.read_config(run_id)
     if car_calibration is not None:  # drive the policy on another car than the one it was trained on
@@ -48,11 +55,11 @@ def run_eval(
     with tempfile.TemporaryDirectory(prefix="racer-eval-") as tmp:
         env_cfg = localize_env(run, runs, Path(tmp))
         recorder = SimTraceRecorder() if sim_trace is not None else None
-        record = evaluate_checkpoint(runs, run, env_cfg, version, settings, recorder)
+        record = evaluate_checkpoint(runs, run, env_cfg, version, settings, recorder, on)
         if recorder is not None:
             Path(sim_trace).write_text(recorder.take(include_open=True) or "")
         if video is not None:
-            record["video"] = write_video(runs, run, env_cfg, record["version"], settings, video)
+            record["video"] = write_video(runs, run, env_cfg, record["version"], settings, video, on)
         return record
 
 
@@ -69,8 +76,17 @@ def _with_greedy_action(runs: RunStore, run: RunConfig, greedy_action: str) -> R
     return run.model_copy(update={"policy": run.policy.model_copy(update={"greedy_action": greedy_action})})
 
 
-def write_video(runs: RunStore, run: RunConfig, env_cfg, version: int, settings: EvalSettings, path: Path) -> dict:
-    """MP4 of the first evaluation trial (forward, from waypoint 0): the camera beside the car on the track."""
+def write_video(
+    runs: RunStore,
+    run: RunConfig,
+    env_cfg,
+    version: int,
+    settings: EvalSettings,
+    path: Path,
+    device: torch.device | str = "cpu",
+) -> dict:
+    """MP4 of the first evaluation trial (forward, from waypoint 0): the camera beside the car on the track; the
+    network acts on ``device``."""
     from common.policy import load_policy
     from common.sensors import camera_frame_size, split_observation
     from sim.env import RacerEnv
@@ -80,7 +96,8 @@ def write_video(runs: RunStore, run: RunConfig, env_cfg, version: int, settings:
     track = (settings.tracks or [env_cfg.track])[0]
     noise = env_cfg.randomization.model_copy(update={"action_noise": settings.action_noise, "random_start": False})
     env = RacerEnv(config=env_cfg.model_copy(update={"track": track, "randomization": noise}))
-    model, _ = load_policy(runs, run, env.actions, version, frame=camera_frame_size(env.observation_space))
+    frame = camera_frame_size(env.observation_space)
+    model, _ = load_policy(runs, run, env.actions, version, frame=frame, device=device)
     with EpisodeVideo(path, env.track, env.texture, env.frame) as video:
 
         def on_step(observation, info) -> None:

@@ -40,7 +40,10 @@ class TrainOptions:
     trainer_threads: int = 2
     """PyTorch threads of the trainer: with max_policy_lag 0 the workers wait while it trains, so it can use two."""
     precision: str = "auto"
-    """The trainer's PPO update arithmetic: auto, fp32 or bf16 (``racer trainer --precision``)."""
+    """The trainer's PPO update arithmetic: auto, fp32, bf16 or fp16 (``racer trainer --precision``)."""
+    device: str = "auto"
+    """Where the trainer and the evaluator compute: auto, cpu, cuda or cuda:N (``trainer.device``); the workers
+    always act on the CPU."""
     evaluate: bool = True
     """Run the evaluator process beside the trainer."""
     eval_every: int = 1
@@ -142,6 +145,7 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
         trainer_args = ["trainer", "--config", str(config_path), "--files", str(work), *common]
         trainer_args += ["--resume"] if opts.resume else []
         trainer_args += ["--threads", str(opts.trainer_threads), "--precision", opts.precision]
+        trainer_args += ["--device", opts.device]
         # The trainer counts its learning-rate cool-down (lr_cooldown) back from the same limit; the watch below
         # still stops every process at this process's deadline, which comes first.
         trainer_args += ["--time-limit", f"{opts.time_limit_s}s"] if opts.time_limit_s is not None else []
@@ -153,6 +157,7 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
         if opts.evaluate:
             eval_args = ["evaluator", "--run-id", run.run_id, *common, "--every", str(opts.eval_every)]
             eval_args += ["--episodes", str(opts.eval_episodes), "--nice", str(opts.eval_nice)]
+            eval_args += ["--device", opts.device]
             eval_args += [arg for t in opts.eval_tracks for arg in ("--track", t)]
             eval_args += [] if opts.eval_both_directions else ["--forward-only"]
             evaluator.append(spawn_role(eval_args, logs / "evaluator.log"))
@@ -160,6 +165,23 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
             return _watch(run, opts, redis_url, trainer, _Workers(workers, common, logs, opts.worker_restarts), console)
         finally:
             stop_all([*workers, *evaluator, trainer])
+
+
+def check_device_options(device: str, precision: str) -> None:
+    """``--device`` and ``--precision`` as the trainer will take them, checked before anything starts: OptionError
+    naming the option and the value. Every device runs ``auto`` and ``fp32`` and a CPU runs ``bf16``: those
+    pairs are checked by their spelling alone. Any other (a named GPU, ``fp16``, ``bf16`` on ``auto``) needs to know
+    the machine's GPUs, and loads torch into this long-lived process (about 1.3 s and 220 MB) to ask."""
+    from common.config import check_precision
+    from trainer.device import check_device, resolve_device
+
+    check_precision(precision)
+    check_device(device)
+    runs_anywhere = precision in ("auto", "fp32") and device in ("auto", "cpu")
+    if not (runs_anywhere or (device, precision) == ("cpu", "bf16")):
+        from trainer.precision import precision_candidates
+
+        precision_candidates(precision, resolve_device(device))
 
 
 def robust_streak(summaries: list[dict]) -> int:

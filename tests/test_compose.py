@@ -227,7 +227,12 @@ def test_check_swarm_turns_each_depends_on_into_the_short_form_and_changes_nothi
 
 def test_no_interpolation_message_contains_a_dash():
     """docker stack deploy reads `${VAR:?message}` with a '-' in the message as `${VAR-default}`."""
-    for name in ("docker-compose.yml", "deploy/compose.test.yml", "deploy/compose.publish.yml"):
+    for name in (
+        "docker-compose.yml",
+        "deploy/compose.test.yml",
+        "deploy/compose.publish.yml",
+        "deploy/compose.gpu.yml",
+    ):
         for var, op, arg in interpolations((ROOT / name).read_text()):
             if "?" in op:
                 assert "-" not in arg, (name, var, arg)
@@ -239,3 +244,31 @@ def test_restart_policies_for_compose_and_swarm():
         assert services[role]["restart"] == "on-failure"
         assert services[role]["deploy"]["restart_policy"] == {"condition": "on-failure"}
     assert services["minio-init"]["deploy"]["restart_policy"] == {"condition": "on-failure"}  # a one-shot job
+
+
+# --- the trainer on a GPU --------------------------------------------------------------------------------------------
+
+
+def test_the_gpu_override_reserves_one_nvidia_gpu_for_the_trainer_and_asks_it_to_use_cuda():
+    from trainer.device import check_device
+
+    base, gpu = compose()["services"], load("deploy/compose.gpu.yml")["services"]
+    assert set(gpu) == set(ROLES) and set(gpu) <= set(base)
+    trainer = gpu["trainer"]
+    assert trainer["deploy"]["resources"]["reservations"]["devices"] == [
+        {"driver": "nvidia", "count": 1, "capabilities": ["gpu"]}
+    ]
+    assert "RACER_DEVICE" in envvars("trainer") and check_device(trainer["environment"]["RACER_DEVICE"]) == "cuda"
+    for role in ("worker", "evaluator"):  # no reservation: they act on the CPU, from the same image
+        assert "deploy" not in gpu[role] and "environment" not in gpu[role]
+    assert {svc["image"] for svc in gpu.values()} == {"${RACER_IMAGE:-racer:gpu}"}  # one image, not the CPU one's tag
+
+
+def test_the_gpu_override_builds_with_a_torch_index_the_user_names():
+    gpu = load("deploy/compose.gpu.yml")["services"]["trainer"]
+    args = gpu["build"]["args"]
+    dockerfile_args = set(re.findall(r"^ARG (\w+)", (ROOT / "Dockerfile").read_text(), re.M))
+    assert set(args) <= dockerfile_args and gpu["build"]["context"] == "."
+    ((name, op, message),) = interpolations(args["TORCH_INDEX_URL"])
+    assert (name, op) == ("RACER_TORCH_INDEX_URL", ":?") and "add the line RACER_TORCH_INDEX_URL=" in message
+    assert re.search(r"^# RACER_TORCH_INDEX_URL=$", (ROOT / ".env.example").read_text(), re.M)

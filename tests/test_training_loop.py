@@ -16,6 +16,7 @@ from model_store.runs import METRICS_FILE
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
 from tests.conftest import S3_BUCKET
+from trainer.device import resolve_device
 from trainer.precision import fastest
 from trainer.process import Trainer, TrainerOptions
 
@@ -91,6 +92,8 @@ def test_an_iteration_publishes_a_version_the_worker_switches_to(redis_url, run_
         )
     else:
         assert status["precision_ms"] == {} and status["precision"] == "fp32"
+    # --device auto: the trainer's network and Adam on the device it names, the checkpoints on the CPU for the worker.
+    assert status["device"] == str(resolve_device("auto")) == str(next(trainer.model.parameters()).device)
     worker.close()
 
 

@@ -38,6 +38,7 @@ from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
 from model_store.runs import evaluation_name, evaluation_stamp, simtrace_key
 from sim.env import RacerEnv
+from trainer.device import resolve_device
 
 log = logging.getLogger("racer.evaluator")
 
@@ -273,13 +274,14 @@ def evaluate_checkpoint(
     version: int | str,
     settings: EvalSettings,
     recorder: SimTraceRecorder | None = None,
+    device: torch.device | str = "cpu",
 ) -> dict:
     """Evaluate one stored checkpoint; the full record (summary, settings and trials). ``recorder`` collects the
-    DeepRacer sim-trace rows of every trial."""
+    DeepRacer sim-trace rows of every trial; the network acts on ``device``."""
     torch.manual_seed(settings.seed)
     # The network needs only the action space and the frame size, not a whole world (texture, MuJoCo model).
     actions = load_action_space(env_cfg.action_space) if env_cfg.action_space else default_action_space()
-    model, meta = load_policy(runs, run, actions, version)
+    model, meta = load_policy(runs, run, actions, version, device=device)
     trials = evaluate(model, env_cfg, run.hyperparams.stack_size, settings, recorder)
     return {
         "run_id": run.run_id,
@@ -323,6 +325,8 @@ class EvaluatorOptions:
     settings: EvalSettings = field(default_factory=EvalSettings)
     outage_s: float = DEFAULT_GIVE_UP_S
     """How long to ride out one Redis or store outage before exiting with an error, seconds."""
+    device: str = "auto"
+    """Where the network acts: ``auto``, ``cpu``, ``cuda`` or ``cuda:N`` (``trainer.device``)."""
 
 
 def run_evaluator(opts: EvaluatorOptions, stop: threading.Event | None = None) -> None:
@@ -332,6 +336,7 @@ def run_evaluator(opts: EvaluatorOptions, stop: threading.Event | None = None) -
     A Redis or store outage shorter than ``opts.outage_s`` is ridden out (``common/retry.py: Outage``); a longer one
     ends it with OutageError."""
     torch.set_num_threads(1)
+    device = resolve_device(opts.device)
     stop = stop or threading.Event()
     bus = Bus.connect(opts.redis_url, opts.run_id)
     runs = RunStore(open_store(opts.store, opts.s3_endpoint))
@@ -352,7 +357,7 @@ def run_evaluator(opts: EvaluatorOptions, stop: threading.Event | None = None) -
                     run = on_store("read the run", partial(runs.read_config, opts.run_id))
                     env_cfg = on_store("read the run's files", partial(localize_env, run, runs, Path(tmp)))
                 recorder = SimTraceRecorder()
-                evaluate = partial(evaluate_checkpoint, runs, run, env_cfg, pv.version, opts.settings, recorder)
+                evaluate = partial(evaluate_checkpoint, runs, run, env_cfg, pv.version, opts.settings, recorder, device)
                 try:
                     record = on_store(f"evaluate v{pv.version}", evaluate)
                 except StoreKeyError:  # pruned while we were behind: the next newest one will do

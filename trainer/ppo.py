@@ -10,6 +10,7 @@ of the epochs (``update(target_kl=...)``) and the learning-rate / entropy schedu
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Literal
 
@@ -167,6 +168,21 @@ class PPOBatch:
         """The rows ``idx`` of every field (an absent LiDAR stays absent)."""
         return PPOBatch(*(_rows(getattr(self, f.name), idx) for f in fields(self)))
 
+    def to(self, device: torch.device) -> PPOBatch:
+        """The batch on ``device``: itself for the CPU; for a GPU every field copied from pinned (page-locked) memory
+        without waiting, so that the copies overlap and the minibatches are then indexed on the GPU."""
+        if device.type == "cpu":
+            return self
+        pinned = device.type == "cuda"
+        return PPOBatch(*(_moved(getattr(self, f.name), device, pinned) for f in fields(self)))
+
+
+def _moved(value: torch.Tensor | None, device: torch.device, pinned: bool) -> torch.Tensor | None:
+    """``value`` on ``device`` (through pinned memory, asynchronously, when ``pinned``); None stays None."""
+    if value is None:
+        return None
+    return (value.pin_memory() if pinned else value).to(device, non_blocking=pinned)
+
 
 def _rows(value: torch.Tensor | None, idx: torch.Tensor) -> torch.Tensor | None:
     """``value[idx]``, or None for an absent optional field."""
@@ -187,6 +203,7 @@ def update(
     max_grad_norm: float,
     generator: torch.Generator,
     target_kl: float | None = None,
+    scaler: torch.amp.GradScaler | None = None,
 ) -> dict[str, float]:
     """PPO epochs over ``batch``; returns the means over minibatches of the losses and statistics.
 
@@ -195,6 +212,11 @@ def update(
     (log_prob, entropy, value); ``lidar`` is the minibatch's LiDAR rows, None for a camera-only network. Keys:
     policy_loss, value_loss, entropy, approx_kl, clip_fraction, grad_norm (before clipping), explained_variance (of
     the batch's old values), epochs_run and epoch_kl (the mean approx KL of the last epoch run).
+
+    The model and the batch are on one device (``PPOBatch.to``); ``generator`` is a CPU one, so every device sees
+    the same shuffles, and each epoch's order is moved to the batch's device once. ``scaler`` (an fp16 trunk on a
+    GPU: ``trainer.precision.grad_scaler``) scales the loss; the means then also have ``amp_skipped``, the share of
+    steps it skipped for non-finite gradients.
 
     ``target_kl`` (None = off, as DeepRacer) stops the remaining epochs once an epoch's mean approx KL exceeds
     it. Each minibatch's KL is measured before its own step, so an epoch's mean covers every row of the batch
@@ -206,13 +228,15 @@ def update(
     n_steps = epochs_run = 0
     epoch_kl = 0.0
     for _ in range(epochs):
-        order = torch.randperm(len(batch), generator=generator)
+        order = torch.randperm(len(batch), generator=generator).to(batch.obs.device)
         kls = []
         for start in range(0, len(batch), minibatch_size):
             mb = batch.select(order[start : start + minibatch_size])
-            stats = minibatch_step(model, optimizer, mb, clip_eps, beta_entropy, value_coef, loss_type, max_grad_norm)
+            stats = minibatch_step(
+                model, optimizer, mb, clip_eps, beta_entropy, value_coef, loss_type, max_grad_norm, scaler
+            )
             for key, value in stats.items():
-                sums[key] += value
+                sums[key] = sums.get(key, 0.0) + value
             kls.append(stats["approx_kl"])
             n_steps += 1
         epochs_run += 1
@@ -271,8 +295,13 @@ def minibatch_step(
     value_coef: float,
     loss_type: ValueLossKind,
     max_grad_norm: float,
+    scaler: torch.amp.GradScaler | None = None,
 ) -> dict[str, float]:
-    """One gradient step on one minibatch; returns its losses and statistics."""
+    """One gradient step on one minibatch; returns its losses and statistics.
+
+    With a ``scaler`` (fp16) the loss is scaled before ``backward`` and the gradients unscaled before clipping, so
+    ``grad_norm`` and the clipping see the true gradients; a step whose gradients overflowed is skipped by the
+    scaler (``amp_skipped`` 1, ``grad_norm`` counted as 0 so that the means stay finite)."""
     new_logp, entropy, values = model.evaluate(mb.obs, mb.actions, mb.lidar)
     advantages = normalize_advantages(mb.advantages)  # per minibatch, as in CleanRL
     pg_loss, clip_fraction, kl = policy_loss(new_logp, mb.old_logp, advantages, clip_eps)
@@ -280,10 +309,18 @@ def minibatch_step(
     ent = entropy_bonus(entropy)
     total = pg_loss + value_coef * v_loss - beta_entropy * ent
     optimizer.zero_grad(set_to_none=True)
-    total.backward()
-    grad_norm = nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
-    optimizer.step()
-    return {
+    if scaler is None:
+        total.backward()
+        grad_norm = nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
+        optimizer.step()
+    else:
+        scaler.scale(total).backward()
+        scaler.unscale_(optimizer)
+        grad_norm = nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
+        scaler.step(optimizer)  # skipped when the unscaled gradients hold an inf or a NaN
+        scaler.update()
+    # .item() last: on a GPU it waits for the device, and here the whole step has been queued before it does.
+    stats = {
         "policy_loss": pg_loss.item(),
         "value_loss": v_loss.item(),
         "entropy": ent.item(),
@@ -291,3 +328,8 @@ def minibatch_step(
         "clip_fraction": clip_fraction.item(),
         "grad_norm": grad_norm.item(),
     }
+    if scaler is not None:
+        skipped = not math.isfinite(stats["grad_norm"])
+        stats["grad_norm"] = 0.0 if skipped else stats["grad_norm"]
+        stats["amp_skipped"] = float(skipped)
+    return stats

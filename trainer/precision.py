@@ -9,6 +9,13 @@ on a copy of its own network and its first batch, under the threads and load it 
 Where bf16 would be emulated (no native kernels) it is always slower, and fp32 is used without a measurement.
 Where the two are close, the choice can differ between runs on one machine, and with it the updates' rounding: a
 run that must repeat bit for bit names its precision (``racer train --precision fp32``).
+
+On a CUDA device (``--device``, ``trainer/device.py``) nothing is timed: ``auto`` is a bf16 trunk where the GPU has
+native bf16 (compute capability 8 and up: :func:`common.policy.bf16_is_fast`), else an fp16 trunk, whose gradients
+are loss-scaled by a ``torch.amp.GradScaler`` (:func:`grad_scaler`: fp16's 5-bit exponent underflows small
+gradients). Either way only the trunk runs under autocast; the weights, the heads, the losses and Adam's state stay
+float32. ``fp16`` is refused on a CPU (no fast kernels there), ``bf16`` on a GPU without it. None of the CUDA path
+has run on a GPU yet.
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ import time
 import torch
 
 from common.config import check_precision
+from common.errors import OptionError
 from common.policy import ActorCritic, Precision, bf16_is_fast
 from trainer.ppo import PPOBatch, ValueLossKind, minibatch_step
 
@@ -32,13 +40,34 @@ PROBE_STEPS = 2
 1.3 s on a machine where a step takes 65-100 ms, once per trainer process."""
 
 
-def precision_candidates(precision: str) -> tuple[Precision, ...]:
-    """What ``precision`` may run as: itself for ``fp32`` or ``bf16``; for ``auto``, both where bf16 kernels are
-    native (:func:`common.policy.bf16_is_fast`; the faster is then measured), fp32 alone where they are not.
-    :class:`~common.errors.OptionError` for any other name."""
-    if check_precision(precision) != "auto":
+def precision_candidates(precision: str, device: torch.device | None = None) -> tuple[Precision, ...]:
+    """What ``precision`` may run as on ``device`` (None: the CPU).
+
+    On the CPU: itself for ``fp32`` or ``bf16``; for ``auto``, both where bf16 kernels are native
+    (:func:`common.policy.bf16_is_fast`; the faster is then measured), fp32 alone where they are not. On a CUDA
+    device: itself, and for ``auto`` bf16 where the GPU has it, else fp16. :class:`~common.errors.OptionError` for
+    any other name, for ``fp16`` on the CPU and for ``bf16`` on a GPU without bf16."""
+    check_precision(precision)
+    if device is None or device.type != "cuda":
+        if precision == "fp16":
+            raise OptionError("--precision 'fp16' is for CUDA devices (--device cuda); on a CPU use auto, fp32 or bf16")
+        if precision == "auto":
+            return ("fp32", "bf16") if bf16_is_fast() else ("fp32",)
         return (precision,)  # type: ignore[return-value]
-    return ("fp32", "bf16") if bf16_is_fast() else ("fp32",)
+    has_bf16 = bf16_is_fast(str(device))
+    if precision == "bf16" and not has_bf16:
+        raise OptionError(f"--precision bf16: the GPU {device} has no native bf16; use auto or fp16")
+    if precision == "auto":
+        return ("bf16",) if has_bf16 else ("fp16",)
+    return (precision,)  # type: ignore[return-value]
+
+
+def grad_scaler(precision: Precision, device: torch.device) -> torch.amp.GradScaler | None:
+    """The loss scaler an fp16 trunk needs on a CUDA device (``trainer.ppo.minibatch_step`` takes it); None for
+    every other precision and device, whose gradients are float32 or bf16 (float32's exponent range)."""
+    if precision == "fp16" and device.type == "cuda":
+        return torch.amp.GradScaler(device.type)
+    return None
 
 
 def time_precisions(

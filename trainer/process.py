@@ -51,8 +51,9 @@ from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
 from model_store.runs import METRICS_FILE, checkpoint_key, evaluation_name, local_run_dir
 from sim.env import RacerEnv
+from trainer.device import resolve_device
 from trainer.ppo import PPOBatch, compute_gae, cooldown_factor, scheduled, update
-from trainer.precision import fastest, precision_candidates, time_precisions
+from trainer.precision import fastest, grad_scaler, precision_candidates, time_precisions
 
 log = logging.getLogger("racer.trainer")
 
@@ -81,8 +82,12 @@ class TrainerOptions:
     outage_s: float = DEFAULT_GIVE_UP_S
     """How long to ride out one Redis or store outage before exiting with an error, seconds."""
     precision: str = "auto"
-    """The trunk's arithmetic in PPO updates: ``fp32``, ``bf16``, or ``auto`` (where bf16 runs natively, both are
-    timed on the first batch and the faster is kept: ``trainer.precision``). Checkpoints are float32 either way."""
+    """The trunk's arithmetic in PPO updates: ``fp32``, ``bf16``, ``fp16`` (CUDA only, loss-scaled), or ``auto`` (on
+    a CPU where bf16 runs natively, both are timed on the first batch and the faster is kept; on a GPU bf16, else
+    fp16: ``trainer.precision``). Checkpoints are float32 either way."""
+    device: str = "auto"
+    """Where the network and Adam live and PPO runs: ``auto``, ``cpu``, ``cuda`` or ``cuda:N`` (``trainer.device``).
+    Checkpoints are saved as CPU tensors whatever it is."""
 
 
 SEEN_SEGMENTS = 4096
@@ -243,6 +248,8 @@ class Trainer:
 
     def __init__(self, run: RunConfig, opts: TrainerOptions, stop: threading.Event | None = None) -> None:
         self.run, self.opts = run, opts
+        self.device = resolve_device(opts.device)
+        precision_candidates(opts.precision, self.device)  # a precision this device cannot run fails before Redis
         self.stop = stop or threading.Event()
         self.bus = Bus.connect(opts.redis_url, run.run_id)
         self.runs = RunStore(open_store(opts.store, opts.s3_endpoint))
@@ -285,11 +292,12 @@ class Trainer:
         # A predecessor killed mid-update leaves its "training" mark, which would hold the workers back.
         self.redis_outage.call("publish the policy", lambda: (self.bus.clear_training(), self._publish()))
         log.info(
-            "run %s: policy v%d published; store %s, Redis %s; PPO updates in %s on %d threads",
+            "run %s: policy v%d published; store %s, Redis %s; PPO updates on %s in %s with %d CPU threads",
             self.run.run_id,
             self.version,
             self.runs.store.uri,
             redact(self.opts.redis_url),
+            self.device,
             " or ".join(self.precision_choices)
             + (" (the faster, timed on the first batch)" if len(self.precision_choices) > 1 else ""),
             torch.get_num_threads(),
@@ -316,13 +324,16 @@ class Trainer:
         spec = action_space_spec(probe.actions)
         probe.close()
         torch.manual_seed(self.run.seed)
-        self.model: ActorCritic = build_policy(self.obs_shape, spec, self.run.policy, sensors)
-        self.precision_choices = precision_candidates(self.opts.precision)
-        """Precisions still in the running: more than one until the first update times them (``auto``)."""
+        # Initialized on the CPU, then moved: the same initial weights on every device.
+        self.model: ActorCritic = build_policy(self.obs_shape, spec, self.run.policy, sensors).to(self.device)
+        self.precision_choices = precision_candidates(self.opts.precision, self.device)
+        """Precisions still in the running: more than one until the first update times them (``auto`` on a CPU)."""
         self.precision: Precision = self.precision_choices[0]
         self.precision_ms: dict[str, float] = {}
         """Milliseconds per minibatch step of each precision timed (empty where only one could run)."""
         self.model.set_trunk_precision(self.precision)
+        self.scaler = grad_scaler(self.precision, self.device)
+        """The loss scaler of an fp16 trunk on a GPU; None otherwise."""
         self.optimizer = make_optimizer(self.model, self.hp.lr, self.run.policy.l2)
         self.generator = torch.Generator().manual_seed(self.run.seed)
 
@@ -491,7 +502,7 @@ class Trainer:
         """One PPO iteration on the buffer, then checkpoint and publish the next version."""
         t0 = time.monotonic()
         self.redis_outage.call("mark the update", lambda: self.bus.mark_training(self.version))
-        batch = make_batch(self.buffer, self.hp.discount_factor, self.run.hyperparams.gae_lambda)
+        batch = make_batch(self.buffer, self.hp.discount_factor, self.run.hyperparams.gae_lambda).to(self.device)
         episodes = [e for s in self.buffer for e in s.episodes]
         lags = [self.version - s.policy_version for s in self.buffer]
         self.buffer = []
@@ -512,6 +523,7 @@ class Trainer:
             max_grad_norm=self.hp.max_grad_norm,
             generator=self.generator,
             target_kl=self.hp.target_kl,
+            scaler=self.scaler,
         )
         result["beta_entropy"] = beta_entropy
         self.model.eval()
@@ -530,7 +542,7 @@ class Trainer:
         if len(self.precision_choices) < 2:
             return
         hp = self.hp
-        minibatch = batch.select(torch.arange(min(len(batch), hp.batch_size)))
+        minibatch = batch.select(torch.arange(min(len(batch), hp.batch_size), device=batch.obs.device))
         step_args = (hp.clip_epsilon, beta_entropy, hp.value_loss_coef, hp.value_loss_kind, hp.max_grad_norm)
         self.precision_ms = time_precisions(self.model, minibatch, self.precision_choices, step_args, hp.lr)
         self.precision = fastest(self.precision_ms)
@@ -758,6 +770,7 @@ class Trainer:
             "slow_rollbacks": self.stability.slow_rollbacks,
             "precision": self.precision,
             "precision_ms": dict(self.precision_ms),
+            "device": str(self.device),
             "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             "time": time.time(),
         }
@@ -809,8 +822,9 @@ def _summary_writer(store: str, run_id: str):
 
 
 def make_batch(segments: list[Segment], gamma: float, lam: float) -> PPOBatch:
-    """GAE per segment (bootstrapping from the values the workers sent), then one flat batch (with the segments'
-    LiDAR vectors when they carry them: all or none do, ``decode_segment`` checks them against the run's sensors)."""
+    """GAE per segment (bootstrapping from the values the workers sent), then one flat batch on the CPU (with the
+    segments' LiDAR vectors when they carry them: all or none do, ``decode_segment`` checks them against the run's
+    sensors); ``PPOBatch.to`` moves it to the trainer's device."""
     parts = {k: [] for k in ("obs", "actions", "logp", "adv", "ret", "values", "lidar")}
     for seg in segments:
         a = seg.arrays

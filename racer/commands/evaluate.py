@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from racer.commands.options import Endpoint, JsonOut, Store, console, write_json
+from racer.commands.options import Endpoint, JsonOut, Store, console, device_option, write_json
 
 
 def evaluate(
@@ -44,6 +44,7 @@ def evaluate(
             "clipped action). Default: the run's greedy_action."
         ),
     ] = None,
+    device: Annotated[str, device_option()] = "auto",
 ) -> None:
     """Evaluate a checkpoint of a run from a store: a table per trial, and the JSON summary."""
     from racer.evaluate import run_eval
@@ -62,6 +63,7 @@ def evaluate(
         car_calibration,
         resets,
         greedy_action,
+        device,
     )
     if json_out != "-":
         console.print(_trials_table(record["trials"]))

@@ -11,6 +11,7 @@ import typer
 from rich.console import Console
 
 from common.errors import OptionError
+from trainer.device import DEVICE_HELP
 
 console = Console()
 """Standard output of every command (progress and messages that must not mix with ``--json -`` go to stderr)."""
@@ -83,6 +84,11 @@ WorkerConfig = Annotated[
     ),
 ]
 Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")]
+
+
+def device_option(envvar: str | None = None) -> object:
+    """The ``--device auto|cpu|cuda|cuda:N`` option (``trainer.device``), read from ``envvar`` too if given."""
+    return typer.Option("--device", envvar=envvar, help=DEVICE_HELP)
 
 
 def json_option(what: str = "the result") -> object:

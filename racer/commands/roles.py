@@ -8,6 +8,7 @@ from typing import Annotated
 
 import typer
 
+from common.config import PRECISION_HELP
 from common.defaults import DEFAULT_TRACK
 from racer.commands.options import (
     Endpoint,
@@ -18,6 +19,7 @@ from racer.commands.options import (
     Verbose,
     WorkerConfig,
     console,
+    device_option,
     json_option,
     write_json,
 )
@@ -42,26 +44,22 @@ def trainer(
     resume: Annotated[bool, typer.Option("--resume", envvar="RACER_RESUME")] = False,
     time_limit: Annotated[str | None, typer.Option("--time-limit", envvar="RACER_TIME_LIMIT")] = None,
     threads: Annotated[int, typer.Option(min=1, envvar="RACER_TRAINER_THREADS", help="PyTorch threads.")] = 1,
-    precision: Annotated[
-        str,
-        typer.Option(
-            envvar="RACER_PRECISION",
-            help="PPO update arithmetic: auto (the faster of fp32 and native bf16, timed), fp32, bf16.",
-        ),
-    ] = "auto",
+    precision: Annotated[str, typer.Option(envvar="RACER_PRECISION", help=PRECISION_HELP)] = "auto",
     worker_config: WorkerConfig = None,
+    device: Annotated[str, device_option("RACER_DEVICE")] = "auto",
     outage_timeout: Outage = "10m",
     verbose: Verbose = False,
 ) -> None:
     """Run the PPO trainer role alone (for docker compose and multi-machine runs)."""
-    from common.config import check_precision
     from model_store import RunStore, open_store
     from racer.lifecycle import setup_logging, stop_event_on_signals
     from racer.runconfig import NewRun, load_race, parse_duration, trainer_role_run, worker_settings
+    from trainer.device import resolve_device
+    from trainer.precision import precision_candidates
     from trainer.process import TrainerOptions, run_trainer
 
     setup_logging(verbose)
-    check_precision(precision)  # bad values fail before any file is written
+    precision_candidates(precision, resolve_device(device))  # bad values fail before any file is written
     limit = parse_duration(time_limit) if time_limit else None
     outage_s = parse_duration(outage_timeout)
     runs = RunStore(open_store(store, s3_endpoint))
@@ -75,7 +73,16 @@ def trainer(
     )
     run, run_files, resume = trainer_role_run(runs, run_id, config, files, resume, new)
     opts = TrainerOptions(
-        redis_url, store, s3_endpoint, resume, limit, threads, run_files, outage_s=outage_s, precision=precision
+        redis_url,
+        store,
+        s3_endpoint,
+        resume,
+        limit,
+        threads,
+        run_files,
+        outage_s=outage_s,
+        precision=precision,
+        device=device,
     )
     run_trainer(run, opts, stop_event_on_signals())
 
@@ -127,6 +134,7 @@ def evaluator(
     nice: Annotated[
         int, typer.Option(min=0, max=19, envvar="RACER_EVAL_NICE", help="Lower CPU priority (Unix nice increment).")
     ] = 0,
+    device: Annotated[str, device_option("RACER_DEVICE")] = "auto",
     outage_timeout: Outage = "10m",
     verbose: Verbose = False,
 ) -> None:
@@ -137,14 +145,16 @@ def evaluator(
         os.nice(nice)  # first, so that even importing torch yields the CPU to the trainer and the workers
     from racer.lifecycle import setup_logging, stop_event_on_signals
     from racer.runconfig import parse_duration
+    from trainer.device import resolve_device
     from trainer.evaluator import EvalSettings, EvaluatorOptions, run_evaluator
 
     setup_logging(verbose)
+    resolve_device(device)  # a bad value fails before Redis is reached
     settings = EvalSettings(
         episodes=episodes, action_noise=action_noise, tracks=track or [], both_directions=not forward_only
     )
     opts = EvaluatorOptions(
-        run_id, redis_url, store, s3_endpoint, every, settings, outage_s=parse_duration(outage_timeout)
+        run_id, redis_url, store, s3_endpoint, every, settings, outage_s=parse_duration(outage_timeout), device=device
     )
     run_evaluator(opts, stop_event_on_signals())
 

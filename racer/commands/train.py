@@ -7,6 +7,7 @@ from typing import Annotated
 
 import typer
 
+from common.config import PRECISION_HELP
 from common.errors import OptionError, UserError
 from racer.commands.options import (
     ActionSpace,
@@ -20,6 +21,7 @@ from racer.commands.options import (
     Store,
     WorkerConfig,
     console,
+    device_option,
 )
 
 TrackOpt = Annotated[str | None, typer.Option(help="Track name or .npy path [default: racer_loop].")]
@@ -53,12 +55,8 @@ def train(
     stop_when_robust: Annotated[
         int | None, typer.Option(min=1, help="Stop after K consecutive checkpoints complete every evaluation lap.")
     ] = None,
-    precision: Annotated[
-        str,
-        typer.Option(
-            help="The trainer's PPO update arithmetic: auto (the faster of fp32 and native bf16, timed), fp32, bf16."
-        ),
-    ] = "auto",
+    precision: Annotated[str, typer.Option(help=PRECISION_HELP)] = "auto",
+    device: Annotated[str, device_option()] = "auto",
     from_drfc: FromDrfc = None,
     race_type: RaceTypeOpt = None,
     race: RaceFile = None,
@@ -68,14 +66,13 @@ def train(
     ] = None,
 ) -> None:
     """Train: an embedded Redis (unless --redis), the PPO trainer and N rollout workers on this machine."""
-    from common.config import check_precision
     from model_store import RunStore, open_store
     from racer.check import drfc_lines, merge_inputs
-    from racer.launcher import TrainOptions, new_run_id, run_summary, run_train
+    from racer.launcher import TrainOptions, check_device_options, new_run_id, run_summary, run_train
     from racer.runconfig import NewRun, load_race, open_run, parse_duration, worker_settings
 
     limit = parse_duration(time_limit) if time_limit else None
-    check_precision(precision)
+    check_device_options(device, precision)
     inputs = merge_inputs(track, reward_fn, action_space, hyperparams, from_drfc, load_race(race, race_type))
     workers = workers or inputs.workers or 2
     eval_episodes = inputs.eval_episodes if eval_episodes == 3 and inputs.eval_episodes else eval_episodes
@@ -114,6 +111,7 @@ def train(
         stop_when_robust=stop_when_robust,
         eval_tracks=eval_track or [],
         precision=precision,
+        device=device,
     )
     console.print(f"run [bold]{rid}[/]: {workers} workers on {run.env.track}, store {store}")
     status = run_train(run, opts, files, console)
