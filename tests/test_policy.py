@@ -399,7 +399,7 @@ def test_a_front_camera_network_keeps_the_state_dict_of_checkpoints_before_lidar
         "trunk.2.bias": (64,),
         "trunk.4.weight": (64, 64, 3, 3),
         "trunk.4.bias": (64,),
-        "trunk.7.weight": (512, 64),  # after Flatten (6): 64 × 1 × 1 features on 36×36 frames
+        "trunk.7.weight": (512, 64),  # after Flatten (5) and ReLU (6): 64 × 1 × 1 features on 36×36 frames
         "trunk.7.bias": (512,),
         "value_head.weight": (1, 512),
         "value_head.bias": (1,),

@@ -303,17 +303,46 @@ def update(
     threads: Annotated[int, typer.Option(min=1, help="PyTorch threads (racer train's trainer uses 2).")] = 2,
     batch: Annotated[int, typer.Option(min=1, help="Minibatch size (DeepRacer's batch_size).")] = 64,
     repeats: Annotated[int, typer.Option(min=1, help="Timed runs of 10 steps; the median is reported.")] = 5,
+    breakdown: Annotated[
+        bool, typer.Option(help="Also profile auto's setting: its GEMM operators' time against the rest, top ops.")
+    ] = False,
     json_out: JsonOut = None,
 ) -> None:
-    """Milliseconds per PPO minibatch step (forward, backward, Adam): fp32/bf16 trunk × Adam loop/fused."""
+    """Milliseconds per PPO minibatch step (forward, backward, Adam): fp32/bf16 trunk × Adam loop/fused, and the share
+    of the machine's GEMM peak (same arithmetic, same threads, timed in the same run) each gets."""
     from racer.bench_update import bench_update
 
-    result = bench_update(threads, batch, repeats=repeats)
-    table = Table("setting", "ms per minibatch (median)", "speed-up vs fp32 + Adam loop")
+    result = bench_update(threads, batch, repeats=repeats, with_breakdown=breakdown)
+    table = Table("setting", "ms per minibatch (median)", "speed-up vs fp32 + Adam loop", "GFLOP/s", "of GEMM peak")
     for name, ms in result["ms_per_step"].items():
-        table.add_row(name, f"{ms:.1f}", f"{result['speedup_vs_fp32_loop'][name]:.2f}×")
+        fraction = result["fraction_of_peak_by_setting"][name]
+        share = "- (bf16 emulated)" if fraction is None else f"{fraction:.2f}"
+        table.add_row(
+            name, f"{ms:.1f}", f"{result['speedup_vs_fp32_loop'][name]:.2f}×", f"{result['gflops'][name]:.0f}", share
+        )
     console.print(table)
-    console.print(f"racer train --precision auto trains in {result['auto']} on this machine")
+    peaks = ", ".join(f"{p} {g:.0f}" for p, g in result["peak_gflops"].items() if g is not None)
+    console.print(
+        f"{result['update_gflop']:.2f} GFLOP a minibatch step; GEMM peak ({result['gemm_size']}², "
+        f"{threads} threads): {peaks} GFLOP/s",
+        highlight=False,
+    )
+    console.print(
+        f"racer train --precision auto trains in {result['auto']} on this machine, at "
+        f"{result['fraction_of_peak']:.2f} of its GEMM peak",
+        highlight=False,
+    )
+    if breakdown:
+        parts = result["breakdown"]
+        ops = Table("operator", "input shapes", "ms a step")
+        for op in parts["ops"]:
+            ops.add_row(op["op"], " ".join(str(tuple(s)) for s in op["shapes"]), f"{op['ms']:.2f}")
+        console.print(ops)
+        console.print(
+            f"{parts['precision']} step {parts['step_ms']:.1f} ms (profiled): GEMM operators {parts['gemm_ms']:.1f} ms "
+            f"at {parts['gemm_fraction_of_peak']:.2f} of the GEMM peak, the rest {parts['other_ms']:.1f} ms",
+            highlight=False,
+        )
     write_json(result, json_out)
 
 
