@@ -162,6 +162,11 @@ class Bus:
             "keys": int(self.redis.dbsize()),
         }
 
+    def cpu_seconds(self) -> float:
+        """CPU time the Redis server has used since it started (system + user, INFO cpu), for the benches."""
+        info = self.redis.info("cpu")
+        return float(info["used_cpu_sys"]) + float(info["used_cpu_user"])
+
 
 def _json_object(raw: bytes | str) -> dict[str, Any] | None:
     try:
