@@ -364,6 +364,37 @@ def soak(
     write_json(result, json_out)
 
 
+@app.command("scale")
+def scale(
+    levels: Annotated[
+        str, typer.Option(help="Comma-separated counts of synthetic workers, one level each.")
+    ] = "1,4,16,64",
+    seconds: Annotated[
+        float, typer.Option(min=1, help="Measured seconds per level (then until two updates have finished in it).")
+    ] = 20.0,
+    rate: Annotated[
+        float | None, typer.Option(help="Segments/s per synthetic worker (default: one real worker's, measured).")
+    ] = None,
+    max_policy_lag: Annotated[int, typer.Option(min=1, help="The trainer's max_policy_lag.")] = 1,
+    processes: Annotated[
+        int | None, typer.Option(min=1, help="Pusher processes per level (default: one per synthetic worker).")
+    ] = None,
+    track: Track = DEFAULT_TRACK,
+    hyperparams: Hyperparams = None,
+    json_out: JsonOut = None,
+) -> None:
+    """Trainer intake, Redis memory and CPU, staleness and lost segments with 1…64 workers' load (real segments)."""
+    from racer.bench_scale import ScaleSettings, bench_scale, scale_summary, scale_table
+
+    counts = int_list(levels, "--levels")
+    hp = str(hyperparams) if hyperparams else None
+    settings = ScaleSettings(track=track, hyperparams=hp, max_policy_lag=max_policy_lag)
+    result = bench_scale(counts, seconds, rate, settings, processes)
+    console.print(scale_table(result))
+    console.print(scale_summary(result), highlight=False)
+    write_json(result, json_out)
+
+
 def _print_figures(figures: dict, json_out: str | None, float_format: str) -> None:
     """A two-column table of ``figures`` (floats in ``float_format``), and the JSON if asked."""
     table = Table("figure", "value")
