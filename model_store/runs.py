@@ -112,11 +112,17 @@ def simtrace_key(
     raise ValueError(f"invalid sim-trace kind {kind!r}: 'training' or 'evaluation'")
 
 
-def local_run_dir(store: str, run_id: str) -> Path:
-    """The run's folder on this machine, for what is written as local files (role logs, TensorBoard): the run's
-    folder in a directory store, ``./runs/<run_id>`` for a bucket."""
+def local_runs_dir(store: str) -> Path:
+    """The folder on this machine that holds the runs' local folders (``local_run_dir``): ``runs/`` in a directory
+    store, ``./runs`` for a bucket."""
     root = Path(store) if "://" not in store else Path(".")
-    return root / run_prefix(run_id)
+    return root / "runs"
+
+
+def local_run_dir(store: str, run_id: str) -> Path:
+    """The run's folder on this machine, for what is written as local files (role logs, TensorBoard, the record of
+    a running ``racer train``'s Redis): the run's folder in a directory store, ``./runs/<run_id>`` for a bucket."""
+    return local_runs_dir(store) / check_run_id(run_id)
 
 
 def checkpoint_key(run_id: str, version: int) -> str:

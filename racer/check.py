@@ -3,6 +3,7 @@ each, one line per file; and the merging of ``--from-drfc`` with explicit option
 
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -61,15 +62,39 @@ def merge_inputs(
     )
 
 
+LINE_WIDTH = 110
+"""Where ``drfc_lines`` wraps the list of unused variables."""
+VALUE_WIDTH = 24
+"""A DRfC value longer than this is cut in ``drfc_lines``' table (the file has it whole)."""
+
+
 def drfc_lines(drfc: DrfcImport | None) -> list[str]:
-    """What racer does with a DRfC folder's variables: the mapped ones, then one line listing the rest."""
+    """What racer does with a DRfC folder's variables: a table of those racer reads (variable, value, the racer
+    setting and value it becomes, or why it changes nothing), then the names of the rest, wrapped."""
     if drfc is None or not drfc.env_files:
         return []
     files = ", ".join(str(p) for p in drfc.env_files)
-    used = "; ".join(f"{k} -> {v}" for k, v in sorted(drfc.mapped.items())) or "none"
-    lines = [f"{files}: used: {used}"]
-    if drfc.unmapped:
-        lines.append(f"{files}: no racer meaning, not used: {', '.join(sorted(drfc.unmapped))}")
+    rows = [("variable", "value", "racer")]
+    for key, meaning in sorted({**drfc.ignored, **drfc.mapped}.items()):
+        value = drfc.values.get(key, "")
+        rows.append((key, value if len(value) <= VALUE_WIDTH else value[: VALUE_WIDTH - 1] + "…", meaning))
+    lines = [f"{files}: the DRfC variables racer reads"]
+    if len(rows) > 1:
+        key_width, value_width = (max(len(row[i]) for row in rows) for i in (0, 1))
+        lines += [f"  {k:<{key_width}}  {v:<{value_width}}  {m}".rstrip() for k, v, m in rows]
+    else:
+        lines[0] += ": none"
+    if drfc.unmapped:  # under the files' line above; wrapped, not one line of 1.5 kB
+        names = ", ".join(sorted(drfc.unmapped))
+        head = "  no racer meaning, not used: "
+        lines += textwrap.wrap(
+            names,
+            LINE_WIDTH,
+            initial_indent=head,
+            subsequent_indent="    ",
+            break_on_hyphens=False,
+            break_long_words=False,
+        )
     return lines
 
 

@@ -3,9 +3,10 @@
 A DRfC user keeps ``reward_function.py``, ``model_metadata.json`` and ``hyperparameters.json`` in
 ``custom_files/`` and the run's settings as ``DR_*`` variables in ``run.env`` (and ``system.env``).
 :func:`import_drfc` finds those files and maps every variable that has a racer meaning; the others are
-returned in :attr:`DrfcImport.unmapped`, for the one line ``racer train`` and ``racer check`` print, so that
-nothing is dropped silently. Variables whose value racer cannot honour (another race type, a track racer
-does not ship) are a one-line :class:`DrfcError` naming the file, the variable and the value.
+returned in :attr:`DrfcImport.unmapped`, listed by ``racer train`` and ``racer check`` under their table of the
+variables racer reads (``racer/check.py: drfc_lines``), so that nothing is dropped silently. Variables whose
+value racer cannot honour (another race type, a track racer does not ship) are a one-line :class:`DrfcError`
+naming the file, the variable and the value.
 
 The variables' meanings follow DRfC's ``defaults/template-run.env`` and the simapp's use of them
 (``markov/agent_ctrl/rollout_agent_ctrl.py``: ``change_start`` advances the start by
@@ -52,7 +53,11 @@ class DrfcImport:
     pretrained: str | None = None
     """``RUN:CHECKPOINT`` to start from (DR_LOCAL_S3_PRETRAINED)."""
     mapped: dict[str, str] = field(default_factory=dict)
-    """Each variable used, with what racer does with it."""
+    """Each variable used, with what racer does with it (the racer setting and the value it gets)."""
+    ignored: dict[str, str] = field(default_factory=dict)
+    """Each variable racer knows that changes nothing as set here, with why (its value, or another variable's)."""
+    values: dict[str, str] = field(default_factory=dict)
+    """The value of each variable in ``mapped`` and ``ignored``, as the files set it."""
     unmapped: list[str] = field(default_factory=list)
     """DR_* variables set in the files that have no racer meaning (yet)."""
     track_error: DrfcError | None = None
@@ -142,11 +147,17 @@ def _apply(out: DrfcImport, env: dict[str, tuple[str, Path]]) -> None:
             if key.startswith("DR_"):
                 out.unmapped.append(key)
             continue
+        out.values[key] = value
         meaning = handler(out, value, _Where(path, key, value))
         if meaning:
             out.mapped[key] = meaning
     _finish_start_positions(out, env)
     _finish_race(out, env)
+    for key in out.values:
+        if key in out.mapped:
+            out.ignored.pop(key, None)
+        else:
+            out.ignored.setdefault(key, "no effect with this value")
     if out.randomization.get("reverse_prob") and out.randomization.get("alternate_direction"):
         value, path = env["DR_TRAIN_REVERSE_DIRECTION"]
         where = _Where(path, "DR_TRAIN_REVERSE_DIRECTION", value)
@@ -190,6 +201,7 @@ def _world(out: DrfcImport, value: str, where: _Where) -> str:
     except TrackError as exc:
         # Raised only if no --track is given: the user may pass the track's .npy instead.
         out.track_error = where.error(f"{exc}; or give --track with its .npy file")
+        out.ignored[where.key] = "not a track racer has: --track decides"
         return ""
     out.track = value
     return f"--track {value}"
@@ -234,11 +246,12 @@ def _race_variable(out: DrfcImport, value: str, where: _Where) -> str:
     elif where.key in _RACE_BOOLS and value.strip().lower() not in ("true", "false"):
         # The simapp's str2bool knows only true/false: any other text stays a (truthy) string there.
         raise where.error("expected True or False")
-    return "race settings (below)"
+    return ""  # the race's field and value, once the race is built (_finish_race)
 
 
 def _evaluation_collision(out: DrfcImport, value: str, where: _Where) -> str:
     # DRfC's template sets it, but its scripts/evaluation/prepare-config.py reads DR_COLLISION_PENALTY instead.
+    out.ignored[where.key] = "not read by DRfC either (its evaluation reads DR_COLLISION_PENALTY)"
     return ""
 
 
@@ -277,6 +290,7 @@ def _reverse(out: DrfcImport, value: str, where: _Where) -> str:
     # The simapp's REVERSE_DIR is the first episode's direction, which alternate_driving_direction then flips
     # (track_data.py, rollout_agent_ctrl.py); racer's alternation always starts forward, so the pair is refused.
     if not _bool(where):
+        out.ignored[where.key] = "False: episodes start in the track's direction"
         return ""
     out.randomization["reverse_prob"] = 1.0
     return "reverse_prob 1 (every episode driven in reverse)"
@@ -289,15 +303,17 @@ def _multi(out: DrfcImport, value: str, where: _Where) -> str:
 
 def _noted(out: DrfcImport, value: str, where: _Where) -> str:
     _bool(where) if where.key == "DR_TRAIN_CHANGE_START_POSITION" else _number(where, float, 0.0, 1.0)
-    return "start positions (below)"
+    return ""  # the start positions the pair sets, once both are read (_finish_start_positions)
 
 
 def _pretrained(out: DrfcImport, value: str, where: _Where) -> str:
-    return "starts from another run (with DR_LOCAL_S3_PRETRAINED_PREFIX)" if _bool(where) else ""
+    if not _bool(where):
+        out.ignored[where.key] = "False: the run starts from fresh weights"
+    return ""  # the --pretrained it sets, once its prefix and checkpoint are read (_finish_start_positions)
 
 
 def _unused_when_empty(out: DrfcImport, value: str, where: _Where) -> str:
-    return "read with DR_LOCAL_S3_PRETRAINED"
+    return ""  # read with DR_LOCAL_S3_PRETRAINED (_finish_start_positions)
 
 
 _HANDLERS = {
@@ -331,9 +347,16 @@ def _finish_start_positions(out: DrfcImport, env: dict[str, tuple[str, Path]]) -
             out.randomization.update(random_start=False, round_robin_divisions=max(1, round(1 / step)))
         else:
             out.randomization.update(random_start=False, round_robin_divisions=1)  # always the first waypoint
-        out.mapped["DR_TRAIN_CHANGE_START_POSITION"] = (
-            f"random_start False, round_robin_divisions {out.randomization['round_robin_divisions']}"
-        )
+        divisions = out.randomization["round_robin_divisions"]
+        out.mapped["DR_TRAIN_CHANGE_START_POSITION"] = f"random_start False, round_robin_divisions {divisions}"
+        if "DR_TRAIN_ROUND_ROBIN_ADVANCE_DIST" in env:
+            out.mapped["DR_TRAIN_ROUND_ROBIN_ADVANCE_DIST"] = (
+                f"round_robin_divisions {divisions} (the lap in parts of {step:g})"
+                if divisions > 1
+                else "round_robin_divisions 1 (always the first waypoint)"
+            )
+    elif "DR_TRAIN_ROUND_ROBIN_ADVANCE_DIST" in env:
+        out.ignored["DR_TRAIN_ROUND_ROBIN_ADVANCE_DIST"] = "not used without DR_TRAIN_CHANGE_START_POSITION"
     pre = env.get("DR_LOCAL_S3_PRETRAINED")
     if pre is not None and _bool(_Where(pre[1], "DR_LOCAL_S3_PRETRAINED", pre[0])):
         prefix = env.get("DR_LOCAL_S3_PRETRAINED_PREFIX")
@@ -348,6 +371,13 @@ def _finish_start_positions(out: DrfcImport, env: dict[str, tuple[str, Path]]) -
             raise _Where(prefix[1], "DR_LOCAL_S3_PRETRAINED_PREFIX", prefix[0]).error("names no run")
         out.pretrained = f"{source}:{'latest' if checkpoint == 'last' else checkpoint}"
         out.mapped["DR_LOCAL_S3_PRETRAINED"] = f"--pretrained {out.pretrained}"
+        for key in ("DR_LOCAL_S3_PRETRAINED_PREFIX", "DR_LOCAL_S3_PRETRAINED_CHECKPOINT"):
+            if key in env:
+                out.mapped[key] = f"--pretrained {out.pretrained}"
+    else:
+        for key in ("DR_LOCAL_S3_PRETRAINED_PREFIX", "DR_LOCAL_S3_PRETRAINED_CHECKPOINT"):
+            if key in env:
+                out.ignored[key] = "not used: DR_LOCAL_S3_PRETRAINED is not True"
 
 
 def _finish_race(out: DrfcImport, env: dict[str, tuple[str, Path]]) -> None:
@@ -373,6 +403,53 @@ def _finish_race(out: DrfcImport, env: dict[str, tuple[str, Path]]) -> None:
     if race.bot_car_count:
         summary += f", {race.bot_car_count} bot cars at {race.head_to_bot.bot_car_speed:g} m/s"
     out.mapped["DR_RACE_TYPE"] = f"race {summary}"
+    for key in given:
+        if key != "DR_RACE_TYPE":
+            _race_field(out, key, race)
+
+
+RACE_FIELDS: dict[str, tuple[str, str]] = {
+    "DR_OA_NUMBER_OF_OBSTACLES": ("object_avoidance", "number_of_obstacles"),
+    "DR_OA_MIN_DISTANCE_BETWEEN_OBSTACLES": ("object_avoidance", "min_distance_between_obstacles"),
+    "DR_OA_RANDOMIZE_OBSTACLE_LOCATIONS": ("object_avoidance", "randomize_obstacle_locations"),
+    "DR_OA_IS_OBSTACLE_BOT_CAR": ("object_avoidance", "is_obstacle_bot_car"),
+    "DR_OA_OBSTACLE_TYPE": ("object_avoidance", "obstacle_type"),
+    "DR_OA_OBJECT_POSITIONS": ("object_avoidance", "object_positions"),
+    "DR_H2B_IS_LANE_CHANGE": ("head_to_bot", "is_lane_change"),
+    "DR_H2B_LOWER_LANE_CHANGE_TIME": ("head_to_bot", "lower_lane_change_time"),
+    "DR_H2B_UPPER_LANE_CHANGE_TIME": ("head_to_bot", "upper_lane_change_time"),
+    "DR_H2B_LANE_CHANGE_DISTANCE": ("head_to_bot", "lane_change_distance"),
+    "DR_H2B_NUMBER_OF_BOT_CARS": ("head_to_bot", "number_of_bot_cars"),
+    "DR_H2B_MIN_DISTANCE_BETWEEN_BOT_CARS": ("head_to_bot", "min_distance_between_bot_cars"),
+    "DR_H2B_RANDOMIZE_BOT_CAR_LOCATIONS": ("head_to_bot", "randomize_bot_car_locations"),
+    "DR_H2B_BOT_CAR_SPEED": ("head_to_bot", "bot_car_speed"),
+    "DR_H2B_BOT_CAR_PENALTY": ("head_to_bot", "penalty_seconds"),
+    "DR_EVAL_OFF_TRACK_PENALTY": ("penalties", "off_track_penalty"),
+    "DR_COLLISION_PENALTY": ("penalties", "collision_penalty"),
+    "DR_EVAL_MAX_RESETS": ("penalties", "number_of_resets"),
+    "DR_EVAL_RESET_BEHIND_DIST": ("penalties", "reset_behind_dist"),
+}
+"""The ``RaceConfig`` field (section, name) each race variable sets, as ``common.race.race_config_from_drfc`` reads
+them (a test holds the two together), for saying what racer made of each."""
+_SECTION_RACE = {"object_avoidance": RaceType.OBJECT_AVOIDANCE, "head_to_bot": RaceType.HEAD_TO_BOT}
+
+
+def _race_field(out: DrfcImport, key: str, race: RaceConfig) -> None:
+    """What one race variable became: its field and value, or why it changes nothing in this race."""
+    section, name = RACE_FIELDS[key]
+    needs = _SECTION_RACE.get(section)
+    if needs is not None and race.race_type is not needs:
+        out.ignored[key] = f"not used: the race is {race.race_type.value}"
+        return
+    value = getattr(getattr(race, section), name)
+    if isinstance(value, list):
+        shown = f"{len(value)} positions"
+    elif isinstance(value, float):
+        shown = f"{value:g}"
+    else:
+        shown = str(value)
+    where = " (racer eval's resets)" if section == "penalties" else ""
+    out.mapped[key] = f"{section}.{name} {shown}{where}"
 
 
 @dataclass

@@ -24,6 +24,7 @@ from model_store import LocalStore, RunStore, open_store
 from model_store.runs import local_run_dir, run_prefix
 from racer.embedded_redis import EmbeddedRedis
 from racer.lifecycle import USER_ERROR_EXIT, RoleFailed, spawn_role, stop_all
+from racer.redis_record import remove_redis_record, write_redis_record
 
 
 @dataclass
@@ -85,6 +86,16 @@ def _duration(seconds: float) -> str:
     return f"{s // 60}m{s % 60:02d}s" if s >= 60 else f"{s}s"
 
 
+PROGRESS_EVERY_S = 30.0
+"""How often ``racer train`` prints a progress line when its output is not a terminal (a pipe, nohup, CI)."""
+
+
+def progress_line(elapsed_s: float, limit_s: float | None, status_line: str) -> str:
+    """``[1m30s, 3m30s left] iter 4  v4  steps …``: one plain line for a log (``[1m30s] …`` without a limit)."""
+    left = "" if limit_s is None else f", {_duration(limit_s - elapsed_s)} left"
+    return f"[{_duration(elapsed_s)}{left}] {status_line}"
+
+
 def _status_line(status: dict | None, procs_alive: int, workers: int, evaluation: dict | None = None) -> str:
     if not status:
         return f"starting… ({procs_alive} of {workers} workers running)"
@@ -97,6 +108,7 @@ def _status_line(status: dict | None, procs_alive: int, workers: int, evaluation
         line += f"  silent: {', '.join(status['silent_workers'])}"
     if evaluation:
         line += f"  eval v{evaluation['version']}: {100 * evaluation['completion_rate']:.0f}% laps"
+        line += "" if evaluation.get("best_lap_s") is None else f", best lap {evaluation['best_lap_s']:.2f} s"
     return line
 
 
@@ -133,6 +145,9 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
     with contextlib.ExitStack() as stack:
         stack.enter_context(sigterm_as_ctrl_c())
         redis_url = opts.redis_url or stack.enter_context(EmbeddedRedis()).url
+        # Registered after the Redis, so removed before it stops: `racer status` never finds a dead one recorded.
+        stack.callback(remove_redis_record, write_redis_record(opts.store, run.run_id, redis_url))
+        console.print(f"Redis: {redact(redis_url)} ({_status_hint(run.run_id, opts.store)})", highlight=False)
         work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="racer-train-")))
         config_path = work / "run.json"
         config_path.write_text(run.model_dump_json())
@@ -182,6 +197,11 @@ def check_device_options(device: str, precision: str) -> None:
         from trainer.precision import precision_candidates
 
         precision_candidates(precision, resolve_device(device))
+
+
+def _status_hint(run_id: str, store: str) -> str:
+    """The command that shows the run from another shell."""
+    return f"racer status --run-id {run_id}" + ("" if store == "." else f" --store {store}")
 
 
 def robust_streak(summaries: list[dict]) -> int:
@@ -266,9 +286,14 @@ def _watch(
     status: dict | None = None
     evals: list[dict] = []
     line = ""
+    # In a terminal, a live display. Elsewhere (a pipe, nohup, CI) Live draws nothing until it stops, so a plain
+    # progress line every PROGRESS_EVERY_S instead.
+    interactive = console.is_interactive
+    next_line = started + PROGRESS_EVERY_S
     # Transient: the last status is printed once after the display stops (a non-terminal Live leaves its last
     # render without a newline, and the next line ran into it).
-    with Live(console=console, refresh_per_second=4, transient=True) as live:
+    live = Live(console=console, refresh_per_second=4, transient=True) if interactive else None
+    with live or contextlib.nullcontext():
         try:
             while deadline is None or time.monotonic() < deadline:
                 if trainer.poll() is not None:
@@ -288,7 +313,12 @@ def _watch(
                     line = _status_line(status, workers.alive, opts.workers, evals[-1] if evals else None)
                 except redis.RedisError as exc:  # the roles ride out the outage; so does the display
                     line = f"Redis at {redact(redis_url)} unreachable ({type(exc).__name__}); the roles are retrying"
-                live.update(f"{_time_bar(time.monotonic() - started, opts.time_limit_s)}\n{line}")
+                elapsed = time.monotonic() - started
+                if live is not None:
+                    live.update(f"{_time_bar(elapsed, opts.time_limit_s)}\n{line}")
+                elif time.monotonic() >= next_line:
+                    console.print(progress_line(elapsed, opts.time_limit_s, line), highlight=False, soft_wrap=True)
+                    next_line += PROGRESS_EVERY_S
                 if opts.stop_when_robust and robust_streak(evals) >= opts.stop_when_robust:
                     console.print(f"robust: {opts.stop_when_robust} checkpoints in a row completed every lap")
                     status = {**(status or {}), "stopped_robust": True}
@@ -297,8 +327,19 @@ def _watch(
         except KeyboardInterrupt:
             console.print("stopping (Ctrl-C or SIGTERM)…")
     if line:
-        console.print(line, highlight=False, soft_wrap=True)
+        last = line if live is not None else progress_line(time.monotonic() - started, opts.time_limit_s, line)
+        console.print(last, highlight=False, soft_wrap=True)
     return {**(status or {}), "trained_s": time.monotonic() - started}
+
+
+def done_line(runs: RunStore, run_id: str, trained_s: float) -> str:
+    """``done: 2 iterations, 2,304 env steps in 61 s``, from the run's metrics.jsonl once every process has stopped:
+    the trainer's last status seen while it ran can predate its last update (a run of 60 s said 0 iterations and 864
+    env steps, and its metrics 1 and 1,152)."""
+    rows = runs.read_metrics(run_id, missing_ok=True)
+    last = rows[-1] if rows else {}
+    iterations, env_steps = int(last.get("iteration", 0)), int(last.get("env_steps", 0))
+    return f"done: {iterations} iterations, {env_steps:,} env steps in {trained_s:.0f} s"
 
 
 def run_summary(run_id: str, runs: RunStore, store: str, s3_endpoint: str | None) -> list[str]:

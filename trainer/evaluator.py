@@ -236,25 +236,48 @@ def drive_lockstep(model: ActorCritic, trials: list[_Driving], deterministic: bo
             t.step(action)
 
 
+def trial_plan(settings: EvalSettings, run_track: str) -> list[tuple[str, bool, int]]:
+    """(track, reverse, i) of every trial, in the order ``evaluate`` drives and lists them: per track, the forward
+    starts, then the reverse ones; ``i`` is the start's number in its direction."""
+    directions = (False, True) if settings.both_directions else (False,)
+    return [
+        (track, reverse, i)
+        for track in settings.tracks or [run_track]
+        for reverse in directions
+        for i in range(settings.episodes)
+    ]
+
+
+def trial_start(env: RacerEnv, settings: EvalSettings, reverse: bool, i: int) -> tuple[int, int]:
+    """(start waypoint, reset seed) of the ``i``-th start in a direction: ``settings.episodes`` starts spread evenly
+    round the lap, each with its own seed, so that a trial driven again (``racer eval --video``) is the same trial."""
+    count = env.task.start_indices(reverse)
+    return round(i * count / settings.episodes) % count, settings.seed + 1000 * i + (500 if reverse else 0)
+
+
+def evaluation_env_config(env_cfg: EnvConfig, settings: EvalSettings, track: str) -> EnvConfig:
+    """The env of an evaluation's trials on ``track``: the run's, with the evaluation's action noise and no random
+    start (each trial sets its own)."""
+    noise = env_cfg.randomization.model_copy(update={"action_noise": settings.action_noise, "random_start": False})
+    return env_cfg.model_copy(update={"track": track, "randomization": noise})
+
+
 def evaluate(
     model: ActorCritic, env_cfg: EnvConfig, stack: int, settings: EvalSettings, recorder: SimTraceRecorder | None = None
 ) -> list[Trial]:
     """All trials of a robust evaluation: every track × direction × spread start, driven in lockstep per track."""
     model.eval()
     trials: list[Trial] = []
-    for track in settings.tracks or [env_cfg.track]:
-        noise = env_cfg.randomization.model_copy(update={"action_noise": settings.action_noise, "random_start": False})
-        cfg = env_cfg.model_copy(update={"track": track, "randomization": noise})
+    plan = trial_plan(settings, env_cfg.track)
+    for track in dict.fromkeys(t for t, _, _ in plan):
+        cfg = evaluation_env_config(env_cfg, settings, track)
         driving: list[_Driving] = []
-        for reverse in (False, True) if settings.both_directions else (False,):
-            for i in range(settings.episodes):
-                env = RacerEnv(config=cfg)
-                count = env.task.start_indices(reverse)
-                start = round(i * count / settings.episodes) % count
-                seed = settings.seed + 1000 * i + (500 if reverse else 0)
-                episode = len(trials) + len(driving)
-                record = recorder is not None
-                driving.append(_start(env, stack, start, reverse, seed, record, episode, settings.resets))
+        for _, reverse, i in [p for p in plan if p[0] == track]:
+            env = RacerEnv(config=cfg)
+            start, seed = trial_start(env, settings, reverse, i)
+            episode = len(trials) + len(driving)
+            record = recorder is not None
+            driving.append(_start(env, stack, start, reverse, seed, record, episode, settings.resets))
         try:
             drive_lockstep(model, driving, settings.deterministic)
         finally:

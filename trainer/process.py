@@ -275,6 +275,8 @@ class Trainer:
             self.hp.collapse_min_best, self.hp.collapse_drop, self.hp.collapse_patience, self.hp.collapse_slowdown
         )
         self.tb = _summary_writer(opts.store, run.run_id) if opts.tensorboard else None
+        self.tb_evaluated = -1
+        """Newest evaluated version whose figures are in TensorBoard (``tensorboard_evaluations``)."""
         self._workdir = tempfile.TemporaryDirectory(prefix="racer-trainer-")
 
     # --- start --------------------------------------------------------------------------------
@@ -356,6 +358,8 @@ class Trainer:
         self.stats.iteration = int(meta.get("iteration", self.version))
         self.stability = Stability.from_meta(meta)
         self.watch.restart(self.stability.floor)
+        # A Redis that outlived the previous trainer (compose) still lists the evaluations it wrote to TensorBoard.
+        self.tb_evaluated = self.version
         with contextlib.suppress(StoreKeyError):
             lines = self.runs.read_file(self.run.run_id, METRICS_FILE).decode().splitlines()
             self.metrics = [json.loads(line) for line in lines if line.strip()]
@@ -435,6 +439,8 @@ class Trainer:
                 self.train()
             if time.monotonic() - last_status > 1.0:
                 self.redis_outage.call("write the status", self.housekeeping)
+                if self.tb is not None:
+                    self.redis_outage.call("read the evaluations", self.tensorboard_evaluations)
                 if self.hp.collapse_guard:
                     self.guard()
                 last_status = time.monotonic()
@@ -737,6 +743,30 @@ class Trainer:
             if e.lap_time_s is not None:
                 self.tb.add_scalar("episode/lap_time_s", e.lap_time_s, step)
         self.tb.flush()
+
+    def tensorboard_evaluations(self) -> int:
+        """The evaluator's new summaries as TensorBoard scalars (``evaluation/…``, at the evaluated checkpoint's env
+        steps, beside the training curves); returns how many were new.
+
+        The trainer writes them, not the evaluator: it owns the run's one TensorBoard writer, and the evaluator may
+        run on another machine (compose), whose summaries reach the trainer through Redis as the collapse guard's do.
+        """
+        if self.tb is None:
+            return 0
+        summaries, _ = self.bus.evaluations(last=EVALUATION_WINDOW)
+        new = sorted((s for s in summaries if s.version > self.tb_evaluated), key=lambda s: s.version)
+        for s in new:
+            step = self.stats.env_steps if s.env_steps is None else s.env_steps
+            self.tb.add_scalar("evaluation/completion_rate", s.completion_rate, step)
+            self.tb.add_scalar("evaluation/mean_progress", s.mean_progress, step)
+            self.tb.add_scalar("evaluation/score", s.score, step)
+            for name, value in (("mean_lap_s", s.mean_lap_s), ("best_lap_s", s.best_lap_s)):
+                if value is not None:  # no lap completed: no lap time
+                    self.tb.add_scalar(f"evaluation/{name}", value, step)
+            self.tb_evaluated = s.version
+        if new:
+            self.tb.flush()
+        return len(new)
 
     def _done(self) -> bool:
         # As the simapp's training_worker.py: term_cond_max_episodes bounds the policy updates (its loop counts one

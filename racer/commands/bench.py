@@ -11,7 +11,7 @@ from rich.table import Table
 
 from common.defaults import DEFAULT_TRACK, STRAIGHT_TRACK
 from common.errors import OptionError
-from racer.commands.options import Car, Hyperparams, JsonOut, Track, console, int_list, write_json
+from racer.commands.options import Car, Hyperparams, JsonOut, Track, console, int_list, print_table, write_json
 
 app = typer.Typer(no_args_is_help=True, help="Benchmarks.")
 
@@ -72,7 +72,7 @@ def env(
     for part in parts:
         value = result[f"{part}_us_per_step"]
         table.add_row(f"{part} µs/step", "-" if value is None else f"{value:.1f}")
-    console.print(table)
+    print_table(table)
     write_json(result, json_out)
 
 
@@ -124,7 +124,7 @@ def loop(
             ", ".join(f"{m:.0f}" for m in r["worker_peak_rss_mb"]),
             f"{r['redis_peak_memory_mb']:.0f}",
         )
-    console.print(table)
+    print_table(table)
     write_json(results, json_out)
 
 
@@ -164,7 +164,7 @@ def train(
     for label, key in (("time to lap s (median)", "time_to_lap_s"), ("env steps to lap", "env_steps_to_lap")):
         table.add_row(label, _whole(result.get(key)), _whole(result.get(f"sb3_{key}")))
     table.add_row("seeds lapped", str(result.get("lapped")), str(result.get("sb3_lapped", "-")))
-    console.print(table)
+    print_table(table)
     if "speedup_vs_sb3" in result:
         console.print(f"racer reaches a robust lap {result['speedup_vs_sb3']:.2f}× as fast as SB3 PPO")
     write_json(result, json_out)
@@ -320,7 +320,7 @@ def update(
         table.add_row(
             name, f"{ms:.1f}", f"{result['speedup_vs_fp32_loop'][name]:.2f}×", f"{result['gflops'][name]:.0f}", share
         )
-    console.print(table)
+    print_table(table)
     peaks = ", ".join(f"{p} {g:.0f}" for p, g in result["peak_gflops"].items() if g is not None)
     console.print(
         f"{result['update_gflop']:.2f} GFLOP a minibatch step; GEMM peak ({result['gemm_size']}², "
@@ -390,7 +390,7 @@ def scale(
     hp = str(hyperparams) if hyperparams else None
     settings = ScaleSettings(track=track, hyperparams=hp, max_policy_lag=max_policy_lag)
     result = bench_scale(counts, seconds, rate, settings, processes)
-    console.print(scale_table(result))
+    print_table(scale_table(result))
     console.print(scale_summary(result), highlight=False)
     write_json(result, json_out)
 
@@ -400,5 +400,5 @@ def _print_figures(figures: dict, json_out: str | None, float_format: str) -> No
     table = Table("figure", "value")
     for k, v in figures.items():
         table.add_row(k, float_format.format(v) if isinstance(v, float) else str(v))
-    console.print(table)
+    print_table(table)
     write_json(figures, json_out)

@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from racer.commands.options import console, json_option, write_json
+from racer.commands.options import console, json_option, print_table, write_json
 
 
 def calibrate(
@@ -46,7 +46,7 @@ def calibrate(
         for key, unit in (("position_m", "m"), ("heading_deg", "deg"), ("speed_mps", "m/s")):
             b, a = report["error_before"][key], report["error_after"][key]
             table.add_row(f"{key.split('_')[0]} ({unit})", f"{b:.3f}", f"{a:.3f}", f"{100 * (1 - a / b):.0f}%")
-        console.print(table)
+        print_table(table)
         for e in report["effects"]:
             errors = e.get("stderr") or {}
             values = ", ".join(

@@ -6,9 +6,10 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.console import Console
 from rich.table import Table
 
-from racer.commands.options import Endpoint, JsonOut, Store, console, device_option, write_json
+from racer.commands.options import Endpoint, JsonOut, Store, console, device_option, print_table, write_json
 
 
 def evaluate(
@@ -22,7 +23,12 @@ def evaluate(
     action_noise: Annotated[float, typer.Option(min=0, max=1, help="Action noise fraction.")] = 0.1,
     json_out: JsonOut = None,
     sim_trace: Annotated[Path | None, typer.Option("--sim-trace", help="Write a DeepRacer sim-trace CSV.")] = None,
-    video: Annotated[Path | None, typer.Option("--video", help="Write an MP4 of the first trial.")] = None,
+    video: Annotated[
+        Path | None, typer.Option("--video", help="Write an MP4 of the trials, one after another (see --video-trial).")
+    ] = None,
+    video_trial: Annotated[
+        int | None, typer.Option("--video-trial", min=1, help="Only this trial in the video (its # in the table).")
+    ] = None,
     car_calibration: Annotated[
         str | None,
         typer.Option("--car", "--car-calibration", help="Drive this car (a preset or a car.json), not the run's."),
@@ -47,7 +53,7 @@ def evaluate(
     device: Annotated[str, device_option()] = "auto",
 ) -> None:
     """Evaluate a checkpoint of a run from a store: a table per trial, and the JSON summary."""
-    from racer.evaluate import run_eval
+    from racer.evaluate import run_eval, video_lines
 
     record = run_eval(
         run_id,
@@ -64,27 +70,31 @@ def evaluate(
         resets,
         greedy_action,
         device,
+        video_trial,
     )
     if json_out != "-":
-        console.print(_trials_table(record["trials"]))
+        print_table(_trials_table(record["trials"]))
         best = "-" if record["best_lap_s"] is None else f"{record['best_lap_s']:.2f} s"
         console.print(
             f"version {record['version']}: completion {100 * record['completion_rate']:.0f}%, "
             f"mean progress {record['mean_progress']:.1f}%, best lap {best}, score {record['score']:.1f}"
         )
+    if "video" in record:  # said even with --json -: on stderr then, so that standard output stays JSON
+        for line in video_lines(record["video"]):
+            (console if json_out != "-" else Console(stderr=True)).print(line, highlight=False, soft_wrap=True)
     summary = {k: v for k, v in record.items() if k != "trials"}
     summary["trials"] = [{k: v for k, v in t.items() if k != "trajectory"} for t in record["trials"]]
     write_json(summary, json_out)
 
 
 def _trials_table(trials: list[dict]) -> Table:
-    table = Table("track", "direction", "start", "status", "progress %", "steps", "lap s", "resets")
-    for t in trials:
+    table = Table("#", "track", "direction", "start", "status", "progress %", "steps", "lap s", "resets")
+    for number, t in enumerate(trials, 1):
         lap = "-" if t["lap_time_s"] is None else f"{t['lap_time_s']:.2f}"
         direction = "reverse" if t["reverse"] else "forward"
         resets = f"{t['resets']} (+{t['penalty_s']:g} s)" if t.get("resets") else "-"
         status = (t["status"], f"{t['progress']:.1f}", str(t["steps"]), lap, resets)
-        table.add_row(t["track"], direction, str(t["start_index"]), *status)
+        table.add_row(str(number), t["track"], direction, str(t["start_index"]), *status)
     return table
 
 

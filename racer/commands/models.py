@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from racer.commands.options import Endpoint, Store, console, json_option, write_json
+from racer.commands.options import Endpoint, Store, console, json_option, print_table, write_json
 
 app = typer.Typer(no_args_is_help=True, help="Runs and checkpoints in a store.")
 
@@ -27,7 +27,7 @@ def ls(
     rows = models_table(store, s3_endpoint, run_id)
     if json_out != "-":
         for table in models_tables(rows, wide):
-            console.print(table)
+            print_table(table)
     write_json(rows, json_out)
 
 

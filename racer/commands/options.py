@@ -9,12 +9,29 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.measure import Measurement
+from rich.table import Table
 
 from common.errors import OptionError
 from trainer.device import DEVICE_HELP
 
 console = Console()
 """Standard output of every command (progress and messages that must not mix with ``--json -`` go to stderr)."""
+
+_UNBOUNDED = 10_000
+"""Columns a piped table may take: more than any table racer prints needs."""
+
+
+def print_table(table: Table) -> None:
+    """A table on standard output: in a terminal, fitted to its width; piped or redirected, whole at its natural
+    width. A pipe has no width, and rich's 80 columns for one cut cells (``racer models ls --wide``'s run ids and
+    versions, ``racer eval``'s track names)."""
+    if console.is_terminal:
+        console.print(table)
+        return
+    natural = Measurement.get(console, console.options.update_width(_UNBOUNDED), table).maximum
+    # A console of its own: the shared one's width is the environment's, and print(width=) cannot exceed it.
+    Console(file=console.file, width=max(natural, console.width), color_system=None).print(table)
 
 
 def write_json(data: object, target: str | None) -> None:

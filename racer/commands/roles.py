@@ -160,15 +160,31 @@ def evaluator(
 
 
 def status(
-    redis_url: Redis,
-    run_id: RunId,
+    redis_url: Annotated[
+        str | None,
+        typer.Option(
+            "--redis",
+            envvar="RACER_REDIS_URL",
+            help="redis://[:password@]host:port/db (default: the one racer train recorded in runs/<id>/redis.json).",
+        ),
+    ] = None,
+    run_id: Annotated[
+        str | None,
+        typer.Option(
+            "--run-id", envvar="RACER_RUN_ID", help="Run id (default: the newest racer train running from --store)."
+        ),
+    ] = None,
+    store: Store = ".",
     json_out: Annotated[str | None, json_option("the run's state")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing; only the exit code.")] = False,
 ) -> None:
     """The state of a run from its Redis: trainer, live workers, newest policy, last evaluation. Exits 1 when no
-    trainer is running (for health checks: docker compose uses it)."""
+    trainer is running (for health checks: docker compose uses it). Without --redis it finds a racer train running
+    on this machine by --run-id, or the newest one, from the record it keeps in the store's run folder."""
     from common.bus import Bus
+    from racer.redis_record import locate_run
 
+    run_id, redis_url = locate_run(store, run_id, redis_url)
     state = Bus.connect(redis_url, run_id).snapshot()
     trainer = state["trainer"]
     if not quiet and json_out != "-":

@@ -10,7 +10,16 @@ import typer
 from rich.table import Table
 
 from common.defaults import DEFAULT_TRACK
-from racer.commands.options import ActionSpace, RaceFile, RaceTypeOpt, Track, console, json_option, write_json
+from racer.commands.options import (
+    ActionSpace,
+    RaceFile,
+    RaceTypeOpt,
+    Track,
+    console,
+    json_option,
+    print_table,
+    write_json,
+)
 
 app = typer.Typer(no_args_is_help=True, help="racer's tracks and DeepRacer's: list, pull (verified) and draw them.")
 
@@ -31,7 +40,7 @@ def ls() -> None:
             t = load_track(name if kind == "racer" else folder / f"{name}.npy")
             direction = "open" if not t.closed else ("CW" if t.clockwise else "CCW")
             table.add_row(name, kind, f"{t.length:.2f}", f"{t.width:.2f}", direction, str(len(t.center)))
-    console.print(table)
+    print_table(table)
     missing = sorted(set(deepracer_route_names()) - set(cached))
     console.print(f"track folder: {folder} (RACER_TRACKS_DIR)", highlight=False, soft_wrap=True)
     if missing:
@@ -52,13 +61,13 @@ def pull(
         typer.Option(
             "--from",
             envvar="RACER_TRACKS_FROM",
-            help="Base URL (http, https, file) or local folder to pull from [default: the community simapp's "
-            "bundle/routes at the commit racer follows].",
+            help="Base URL (http, https, file) or local folder to pull from.",
+            show_default="the community simapp's bundle/routes at the commit racer follows",
         ),
     ] = None,
     folder: Annotated[
         Path | None,
-        typer.Option("--dir", help="Track folder to write [default: RACER_TRACKS_DIR or ~/.cache/racer/tracks]."),
+        typer.Option("--dir", help="Track folder to write.", show_default="RACER_TRACKS_DIR or ~/.cache/racer/tracks"),
     ] = None,
 ) -> None:
     """Download DeepRacer route files into the track folder, each checked against the sha256 racer ships."""
@@ -114,5 +123,5 @@ def drive(
     table = Table("episode", "steps", "status", "progress %", "return")
     for r in rows:
         table.add_row(str(r["episode"]), str(r["steps"]), r["status"], f"{r['progress']:.1f}", f"{r['return']:.2f}")
-    console.print(table)
+    print_table(table)
     write_json(rows, json_out)

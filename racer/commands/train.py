@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from common.config import PRECISION_HELP
+from common.defaults import DEFAULT_TRACK
 from common.errors import OptionError, UserError
 from racer.commands.options import (
     ActionSpace,
@@ -24,13 +25,33 @@ from racer.commands.options import (
     device_option,
 )
 
-TrackOpt = Annotated[str | None, typer.Option(help="Track name or .npy path [default: racer_loop].")]
+# The defaults of --track and --workers are None in code (a --from-drfc folder may set them) and shown as what they
+# come to; rich reads a "[default: …]" written into a help text as markup and prints none of it.
+TrackOpt = Annotated[
+    str | None,
+    typer.Option(
+        help="Track name or .npy path (not given: a --from-drfc folder's DR_WORLD_NAME, if any).",
+        show_default=DEFAULT_TRACK,
+    ),
+]
 
 
 def train(
     track: TrackOpt = None,
-    workers: Annotated[int | None, typer.Option(min=1, help="Rollout worker processes [default: 2].")] = None,
-    time_limit: Annotated[str | None, typer.Option("--time-limit", help="Stop after this long (90s, 5m, 2h).")] = None,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="Rollout worker processes (not given: a --from-drfc folder's DR_WORKERS, if any).",
+            show_default="2",
+        ),
+    ] = None,
+    time_limit: Annotated[
+        str | None,
+        typer.Option(
+            "--time-limit", help="Stop after this long (90s, 5m, 2h).", show_default="none: train until Ctrl-C"
+        ),
+    ] = None,
     run_id: Annotated[str | None, typer.Option("--run-id", help="Run id (default: run-<UTC time>).")] = None,
     store: Store = ".",
     s3_endpoint: Endpoint = None,
@@ -68,7 +89,7 @@ def train(
     """Train: an embedded Redis (unless --redis), the PPO trainer and N rollout workers on this machine."""
     from model_store import RunStore, open_store
     from racer.check import drfc_lines, merge_inputs
-    from racer.launcher import TrainOptions, check_device_options, new_run_id, run_summary, run_train
+    from racer.launcher import TrainOptions, check_device_options, done_line, new_run_id, run_summary, run_train
     from racer.runconfig import NewRun, load_race, open_run, parse_duration, worker_settings
 
     limit = parse_duration(time_limit) if time_limit else None
@@ -115,13 +136,8 @@ def train(
     )
     console.print(f"run [bold]{rid}[/]: {workers} workers on {run.env.track}, store {store}")
     status = run_train(run, opts, files, console)
-    console.print(
-        f"done: {status.get('iteration', 0)} iterations, {status.get('env_steps', 0):,} env steps "
-        f"in {status.get('trained_s', 0.0):.0f} s",
-        highlight=False,
-    )
     try:
-        for line in run_summary(rid, runs, store, s3_endpoint):
+        for line in [done_line(runs, rid, status.get("trained_s", 0.0)), *run_summary(rid, runs, store, s3_endpoint)]:
             console.print(line, highlight=False, soft_wrap=True)
     except UserError as exc:  # the run is trained and saved; only its description failed
         console.print(f"[yellow]could not read the run's summary: {exc}", highlight=False)
