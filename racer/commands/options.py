@@ -10,6 +10,7 @@ from typing import Annotated
 import typer
 from rich.console import Console
 
+from common.config import MAX_ENVS_PER_WORKER
 from common.errors import OptionError
 
 console = Console()
@@ -76,6 +77,16 @@ RaceFile = Annotated[
     ),
 ]
 Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")]
+EnvsPerWorker = Annotated[
+    int,
+    typer.Option(
+        "--envs-per-worker",
+        min=1,
+        max=MAX_ENVS_PER_WORKER,
+        envvar="RACER_ENVS_PER_WORKER",
+        help="Envs each rollout worker steps side by side, acting for all in one batched forward pass.",
+    ),
+]
 
 
 def json_option(what: str = "the result") -> object:

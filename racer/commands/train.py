@@ -12,6 +12,7 @@ from racer.commands.options import (
     ActionSpace,
     Car,
     Endpoint,
+    EnvsPerWorker,
     FromDrfc,
     Hyperparams,
     RaceFile,
@@ -27,6 +28,7 @@ TrackOpt = Annotated[str | None, typer.Option(help="Track name or .npy path [def
 def train(
     track: TrackOpt = None,
     workers: Annotated[int | None, typer.Option(min=1, help="Rollout worker processes [default: 2].")] = None,
+    envs_per_worker: EnvsPerWorker = 1,
     time_limit: Annotated[str | None, typer.Option("--time-limit", help="Stop after this long (90s, 5m, 2h).")] = None,
     run_id: Annotated[str | None, typer.Option("--run-id", help="Run id (default: run-<UTC time>).")] = None,
     store: Store = ".",
@@ -110,8 +112,10 @@ def train(
         stop_when_robust=stop_when_robust,
         eval_tracks=eval_track or [],
         precision=precision,
+        envs_per_worker=envs_per_worker,
     )
-    console.print(f"run [bold]{rid}[/]: {workers} workers on {run.env.track}, store {store}")
+    envs = f" × {envs_per_worker} envs" if envs_per_worker > 1 else ""
+    console.print(f"run [bold]{rid}[/]: {workers} workers{envs} on {run.env.track}, store {store}")
     status = run_train(run, opts, files, console)
     console.print(
         f"done: {status.get('iteration', 0)} iterations, {status.get('env_steps', 0):,} env steps "
