@@ -7,7 +7,8 @@ built default policy through the worker's acting copy (ONNX Runtime, ``rollout_w
 ``torch`` acts with the network itself). Each K's runs are interleaved with the others', run by run, so that a
 noisy machine affects them alike; the figures are medians over the runs.
 
-Per K: env steps per second of the worker's core and where a step's time goes, in µs per env step: ``act`` (the
+Per K: env steps per second of the worker's core, its speed-up over the first K (the median of the ratios of
+runs made back to back) and where a step's time goes, in µs per env step: ``act`` (the
 batched forward passes and sampling, including the value of each segment's last observation), ``env``
 (``env.step``: physics, camera, task, reward function) and ``bookkeeping`` (the rest of ``collect``). Beside them:
 the env's own parts (``sim.bench.env_parts_us``) and the forward pass alone per batch size, PyTorch against ONNX
@@ -67,12 +68,13 @@ def bench_worker(
     env_parts = env_parts_us(first.envs[0].env, 500)
     for ro in groups.values():
         ro.close()
-    base = statistics.median(runs[envs[0]])
+    base = runs[envs[0]]
     per_k = {
         str(k): {
             "steps_per_s": statistics.median(runs[k]),
             "steps_per_s_runs": [round(r, 1) for r in runs[k]],
-            "speedup_vs_first": statistics.median(runs[k]) / base,
+            # Run r of every K ran back to back: the median of the ratios run by run follows a load that drifts.
+            "speedup_vs_first": statistics.median(r / b for r, b in zip(runs[k], base, strict=True)),
             "us_per_step": {p: statistics.median(s[p] for s in split[k]) for p in ("act", "env", "bookkeeping")},
         }
         for k in envs
