@@ -53,10 +53,14 @@ class Bus:
         return bool(self.redis.exists(self.keys.policy))
 
     # --- segments: workers → trainer ------------------------------------------------------------
-    def push_segment(self, fields: dict[str, bytes], heartbeat: Heartbeat, maxlen: int, heartbeat_ttl_s: int) -> None:
-        """Append an encoded segment to the capped stream and refresh the worker's heartbeat, in one round trip."""
+    def push_segments(
+        self, segments: list[dict[str, bytes]], heartbeat: Heartbeat, maxlen: int, heartbeat_ttl_s: int
+    ) -> None:
+        """Append encoded segments to the capped stream, in order, and refresh the worker's heartbeat, in one round
+        trip (a worker with several envs pushes one segment per env)."""
         pipe = self.redis.pipeline(transaction=False)
-        pipe.xadd(self.keys.segments, fields, maxlen=maxlen, approximate=True)
+        for fields in segments:
+            pipe.xadd(self.keys.segments, fields, maxlen=maxlen, approximate=True)
         pipe.set(self.keys.heartbeat(heartbeat.worker_id), heartbeat.to_json(), ex=heartbeat_ttl_s)
         pipe.execute()
 

@@ -20,6 +20,11 @@ FRAME_HEIGHT, FRAME_WIDTH = 120, 160
 """The camera frame a policy sees, pixels: DeepRacer's 160×120 grayscale. The camera renders it, the network is
 built for it, an exported model takes it."""
 
+ENV_SEED_STRIDE = 1000
+"""Env j of rollout worker k is seeded with the run's seed + ENV_SEED_STRIDE·k + j (``RunConfig.seed``)."""
+MAX_ENVS_PER_WORKER = ENV_SEED_STRIDE
+"""The most envs one worker runs (``--envs-per-worker``): more would reach the next worker's seeds."""
+
 NetworkName = Literal["shallow", "deep", "deep_deep"]
 
 # DeepRacer's model_metadata "neural_network" names → racer's trunks.
@@ -228,7 +233,8 @@ class RunConfig(_Strict):
     heartbeat_ttl_s: float = Field(15.0, gt=0)
     """A worker that has not sent a heartbeat for this long is reported silent, seconds."""
     seed: int = 0
-    """Base seed: worker k seeds its env with seed + 1000·k, the trainer uses seed."""
+    """Base seed: worker k seeds its env j (of ``--envs-per-worker``; 0 with one env) with seed + 1000·k + j
+    (``ENV_SEED_STRIDE``), the trainer uses seed."""
     keep_checkpoints: int = Field(5, ge=2)
     """Whole checkpoints kept besides the one ``best`` names (each is ~70 MB with the default CNN and Adam state)."""
     pretrained: str | None = Field(None, pattern=r"^[A-Za-z0-9._-]+:(best|latest|[0-9]+)$")

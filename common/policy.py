@@ -333,6 +333,14 @@ class ActorCritic(nn.Module):
         """(action, log π(action|o), V(o)) for a uint8 batch (and its LiDAR batch); deterministic = the greedy action
         (:meth:`greedy`)."""
         params, value = self(obs, lidar)
+        return self.act_from(params, value, deterministic)
+
+    @torch.no_grad()
+    def act_from(
+        self, params: torch.Tensor, value: torch.Tensor, deterministic: bool = False
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``act`` from ``forward``'s outputs (params, value), for a forward pass run elsewhere (the rollout worker's
+        ONNX Runtime copy of this network): the action drawn from this network's distribution, its log-probability."""
         dist = self._dist(params)
         action = self.greedy(params) if deterministic else dist.sample()
         return action, dist.log_prob(action), value
@@ -347,7 +355,18 @@ class ActorCritic(nn.Module):
         device = self.value_head.weight.device
         lidar_t = None if lidar is None else torch.from_numpy(np.ascontiguousarray(lidar)).to(device)
         obs_t = torch.from_numpy(np.ascontiguousarray(obs)).to(device)
-        action, logp, value = self.act(obs_t, deterministic, lidar_t)
+        return self._numpy_outputs(*self.act(obs_t, deterministic, lidar_t))
+
+    def act_numpy_from(
+        self, params: np.ndarray, value: np.ndarray, deterministic: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``act_from`` on numpy float32 ``forward`` outputs, returning what ``act_numpy`` returns."""
+        return self._numpy_outputs(*self.act_from(torch.from_numpy(params), torch.from_numpy(value), deterministic))
+
+    def _numpy_outputs(
+        self, action: torch.Tensor, logp: torch.Tensor, value: torch.Tensor
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``act``'s tensors as numpy: int64 (B,) or float32 (B, d) actions, float32 log-probs and values."""
         action, logp, value = action.cpu(), logp.cpu(), value.cpu()
         action_np = action.numpy().astype(np.int64 if self.action_kind == "discrete" else np.float32)
         return action_np, logp.numpy().astype(np.float32), value.numpy().astype(np.float32)

@@ -33,7 +33,11 @@ between segments, in the middle of an episode, so an episode belongs to the iter
 worker was acting with when it ENDED: splitting it across two files would give deepracer-utils an episode without
 its ``prepare`` row. ``episode`` counts on across iterations per worker, as DeepRacer's does. deepracer-utils'
 ``unique_episode`` assumes every iteration has as many episodes per worker as iteration 0 (true in DeepRacer, not
-always in racer), so with several workers group by ``["worker", "episode"]``, which is unique. ``tstamp`` is the
+always in racer), so with several workers group by ``["worker", "episode"]``, which is unique. A worker with K envs
+(``--envs-per-worker``) writes the one file per iteration a one-env worker writes, not a folder per env (the 0-9
+limit above would soon be passed, and DeepRacer's worker is the process): env j numbers its n-th episode n·K + j,
+so episodes stay unique within the worker and are the usual 0, 1, 2, … with one env; :func:`merged_csv` writes each
+episode's rows whole, episodes in the order of their numbers. ``tstamp`` is the
 simulation time since the episode's reset (DeepRacer's clock runs on across episodes; its tools use only differences
 within an episode).
 """
@@ -266,15 +270,17 @@ class SimTraceRecorder:
     def take(self, include_open: bool = False) -> str | None:
         """CSV text of the finished episodes (plus, with ``include_open``, the one in progress), then forget them;
         None when there are no rows. The episode in progress otherwise stays for the next iteration."""
+        return merged_csv([self], include_open)
+
+    def take_rows(self, include_open: bool = False) -> list[list[str]]:
+        """The rows :meth:`take` would write, then forget them."""
         if include_open:
             if self._last is not None:
                 self._emit(*self._last)
             self._close_episode()
-        if not self.writer.rows:
-            return None
-        text = self.writer.csv_text()
+        rows = list(self.writer.rows)
         self.writer.clear()
-        return text
+        return rows
 
     def extend(self, other: SimTraceRecorder) -> None:
         """Append ``other``'s finished episodes to this recording (trials driven side by side, kept in order)."""
@@ -298,3 +304,18 @@ class SimTraceRecorder:
         self.open = []
         self._pose = None
         self._last = None
+
+
+def merged_csv(recorders: Sequence[SimTraceRecorder], include_open: bool = False) -> str | None:
+    """One CSV of the rows :meth:`SimTraceRecorder.take` would give for each recorder (several envs of one worker
+    writing one file), episodes in the order of their numbers, each episode's rows whole and in order; None when
+    there are no rows. The recorders must number their episodes apart (a rollout worker's env j of K numbers its
+    n-th episode n·K + j)."""
+    writer = SimTraceWriter()
+    for recorder in recorders:
+        writer.rows.extend(recorder.take_rows(include_open))
+    if not writer.rows:
+        return None
+    if len(recorders) > 1:
+        writer.rows.sort(key=lambda row: int(row[0]))  # stable: each episode's rows keep their order
+    return writer.csv_text()

@@ -34,9 +34,9 @@ def bench_transport(track: str = DEFAULT_TRACK, segment_steps: int = 32, segment
         sim, push, pull = [], [], []
         for _ in range(segments):
             t0 = time.perf_counter()
-            seg = worker.collect()
+            [seg] = worker.collect()
             t1 = time.perf_counter()
-            worker.push(seg)
+            worker.push([seg])
             t2 = time.perf_counter()
             kept = trainer.read(block_ms=1000)
             t3 = time.perf_counter()

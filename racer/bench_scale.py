@@ -4,7 +4,7 @@ Real segments are recorded once: a real ``RolloutWorker`` drives a real ``RacerE
 policy (version 0, published by a real trainer) and its segments are encoded with ``encode_segment``. Each level
 then starts a fresh Redis, a fresh store and the real ``Trainer`` (in this process, in a thread), and forks one
 process per synthetic worker that replays the recorded entries at ``rate`` segments/s. A synthetic worker sends
-what a real one sends: it pushes each entry with its heartbeat (``Bus.push_segment``), its header re-stamped
+what a real one sends: it pushes each entry with its heartbeat (``Bus.push_segments``), its header re-stamped
 (worker id, the policy version it acts with, ``created``: the header JSON only, never the arrays), then GETs the
 published policy version and acts with it from its next segment on, as ``RolloutWorker`` polls after each push.
 
@@ -148,7 +148,7 @@ def record_segments(run: RunConfig, files: dict[str, bytes], min_steps: int) -> 
                 if steps > 64 * max(min_steps, run.segment_steps):
                     raise RuntimeError(f"no episode ended in {steps} env steps of the untrained policy")
                 t0 = time.perf_counter()
-                seg = worker.collect()
+                (seg,) = worker.collect()  # one env per worker: one segment per collect
                 times.append(time.perf_counter() - t0)
                 entries.append(encode_segment(seg))
                 steps, episodes = steps + seg.steps, episodes + len(seg.episodes)
@@ -157,7 +157,7 @@ def record_segments(run: RunConfig, files: dict[str, bytes], min_steps: int) -> 
             worker.policy_version = -1  # makes the published version 0 "new" to poll_policy
             worker.poll_policy()
             per_policy = counting.bytes_read
-            track = worker.env.track.name
+            track = worker.rollouts.track_name
             flops = update_flops_per_step(trainer, entries)
         finally:
             worker.close()
@@ -261,7 +261,7 @@ def _push(plan: _PushPlan, entries: list[dict[str, bytes]], stop: Any, segments:
             max_rss_mb=0.0,
         )
         fields = restamp(entry, w.worker_id, w.version, time.time())
-        bus.push_segment(fields, beat, plan.maxlen, plan.heartbeat_ttl_s)
+        bus.push_segments([fields], beat, plan.maxlen, plan.heartbeat_ttl_s)
         w.sent += 1
         segments[w.slot] += 1
         steps[w.slot] += n_steps

@@ -62,6 +62,8 @@ class TrainOptions:
     """Stop once this many consecutive evaluated checkpoints complete every evaluation lap."""
     worker_restarts: int = 3
     """Restarts allowed per worker slot after a crash or kill (not after a user error, exit code 2)."""
+    envs_per_worker: int = 1
+    """Envs each worker steps side by side (``racer worker --envs-per-worker``)."""
 
 
 def new_run_id() -> str:
@@ -165,8 +167,10 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
         # still stops every process at this process's deadline, which comes first.
         trainer_args += ["--time-limit", f"{opts.time_limit_s}s"] if opts.time_limit_s is not None else []
         trainer = spawn_role(trainer_args, logs / "trainer.log")
+        worker_common = [*common, "--envs-per-worker", str(opts.envs_per_worker)]
         workers = [
-            spawn_role(_worker_args(run.run_id, k, common), logs / f"worker-{k}.log") for k in range(opts.workers)
+            spawn_role(_worker_args(run.run_id, k, worker_common), logs / f"worker-{k}.log")
+            for k in range(opts.workers)
         ]
         evaluator = []
         if opts.evaluate:
@@ -177,7 +181,8 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
             eval_args += [] if opts.eval_both_directions else ["--forward-only"]
             evaluator.append(spawn_role(eval_args, logs / "evaluator.log"))
         try:
-            return _watch(run, opts, redis_url, trainer, _Workers(workers, common, logs, opts.worker_restarts), console)
+            restarts = _Workers(workers, worker_common, logs, opts.worker_restarts)
+            return _watch(run, opts, redis_url, trainer, restarts, console)
         finally:
             stop_all([*workers, *evaluator, trainer])
 

@@ -1,8 +1,26 @@
 """The rollout worker: poll the policy, run episodes, push segments to Redis, keep a heartbeat.
 
-One worker runs one env with its own seed (so its own randomization) and possibly its own track.
-It reads everything about the run from the store (``config.json``, the reward function, the action
-space) so a worker on another machine needs only the run id, the Redis URL and the store URI.
+A worker runs K envs (``--envs-per-worker``, 1 by default) side by side on its track, each with its own seed (so
+its own randomization), and acts for all K in one batched forward pass per step (:class:`Rollouts`), through an
+ONNX Runtime copy of the network (``rollout_worker/onnx_policy.py``): a one-env worker's time goes mostly to that
+forward pass, not to the env, and a batch of K costs much less than K batches of one (docs/speed.md). It reads
+everything about the run from the store (``config.json``, the reward function, the action space) so a worker on
+another machine needs only the run id, the Redis URL and the store URI.
+
+Each env fills its own segment: the trainer's GAE (``trainer/process.py: make_batch``) takes a segment as
+consecutive steps of one env, so a collect pushes K segments, in one Redis round trip. Env j of worker k:
+
+* is seeded with run seed + 1000·k + j (env 0 has the seed a one-env worker always had, so K = 1 is the worker as
+  it was, segment for segment);
+* names its segments ``{worker_id}/{j}`` when K > 1 (``{worker_id}`` when K = 1): the trainer tells segments apart
+  by worker id and creation time (``Trainer._accept``), and a segment's ``episode_id`` counts the episodes of the
+  env that drove it (its own frame stack, episode counter and episode summaries);
+* shares the worker's policy version: every step of a collect is acted by the version the collect started with,
+  and a newer one is loaded only between collects, for all K at once.
+
+The heartbeat stays one per worker process (``{worker_id}``), counting the env steps and segments of all K envs.
+Training sim-traces stay one CSV per worker and policy version (``model_store/runs.py: simtrace_key``); see
+:meth:`Rollouts.take_simtrace` for how the K envs' episodes are numbered in it.
 """
 
 from __future__ import annotations
@@ -14,6 +32,7 @@ import socket
 import tempfile
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -22,17 +41,19 @@ import numpy as np
 import torch
 
 from common.bus import Bus
-from common.config import EnvConfig, RunConfig
+from common.config import ENV_SEED_STRIDE, MAX_ENVS_PER_WORKER, EnvConfig, RunConfig
+from common.errors import OptionError
 from common.framestack import FrameStack
 from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
 from common.redis_util import redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
 from common.sensors import ObsSpec, camera_frame_size, observation_spec, split_observation
-from common.simtrace import SimTraceRecorder
+from common.simtrace import SimTraceRecorder, merged_csv
 from model_store import RunStore, StoreError, is_transient, open_store
 from model_store.localize import localize_env
 from model_store.runs import simtrace_key
+from rollout_worker.onnx_policy import Actor, acting_copy
 from sim.env import RacerEnv
 
 log = logging.getLogger("racer.worker")
@@ -47,7 +68,7 @@ class WorkerOptions:
     store: str = "."
     s3_endpoint: str | None = None
     worker_index: int | None = 0
-    """Index k: seeds the env with run seed + 1000·k, drives the run's worker_env(k) and names the sim-trace folder.
+    """Index k: seeds env j with run seed + 1000·k + j, drives the run's worker_env(k) and names the sim-trace folder.
     None = take the next free index from Redis (scaled compose workers share one set of options)."""
     worker_id: str = ""
     """Name in heartbeats and segments; default ``{host}-{pid}-{index}``."""
@@ -55,6 +76,13 @@ class WorkerOptions:
     """How long to wait for the trainer's first policy before giving up, seconds."""
     outage_s: float = DEFAULT_GIVE_UP_S
     """How long to ride out one Redis or store outage before exiting with an error, seconds."""
+    envs_per_worker: int = 1
+    """K: envs stepped side by side, acted for in one batched forward pass per step (see the module doc)."""
+
+    def __post_init__(self) -> None:
+        k = self.envs_per_worker
+        if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= MAX_ENVS_PER_WORKER:
+            raise OptionError(f"--envs-per-worker must be an integer from 1 to {MAX_ENVS_PER_WORKER}, got {k!r}")
 
 
 @dataclass
@@ -75,8 +103,223 @@ class _Rollout:
     episodes: list = field(default_factory=list)
 
 
+@dataclass
+class _Env:
+    """One of a worker's envs, and what it carries from one segment to the next."""
+
+    env: RacerEnv
+    index: int
+    """j, its place among the worker's envs."""
+    seed: int
+    segment_worker_id: str
+    """The worker id its segments carry."""
+    stack: FrameStack
+    simtrace: SimTraceRecorder = field(default_factory=SimTraceRecorder)
+    """DeepRacer sim-trace rows of the current iteration."""
+    episode: int = 0
+    """Episodes this env has finished: the number of the one it is driving."""
+    ep_reward: float = 0.0
+    obs: np.ndarray | None = None
+    """The stacked camera observation the next action is chosen from."""
+    lidar: np.ndarray | None = None
+    """Its LiDAR vector (None without a LiDAR sensor)."""
+
+    def observe(self, observation: np.ndarray | dict, first: bool = False) -> None:
+        """Take an env observation apart: its camera frame onto the stack (``obs``), its LiDAR vector (not stacked,
+        as in DeepRacer) into ``lidar``."""
+        camera, self.lidar = split_observation(observation)
+        self.obs = self.stack.reset(camera) if first else self.stack.push(camera)
+
+
+def segment_worker_ids(worker_id: str, envs: int) -> list[str]:
+    """The worker ids of the segments of a worker's ``envs`` envs: its own with one env, ``{worker_id}/{j}`` with
+    more (the trainer drops a segment whose worker id and creation time it has seen: each env needs its own)."""
+    return [worker_id] if envs == 1 else [f"{worker_id}/{j}" for j in range(envs)]
+
+
+class Rollouts:
+    """K envs stepped side by side under one policy, and the segments they fill: the part of a worker that needs
+    neither Redis nor the store (``racer bench worker`` times it as it is).
+
+    ``time_s`` adds up the seconds of ``collect`` (``collect``), of the forward passes with sampling (``act``) and
+    of ``env.step`` (``env``: physics, camera, task, reward function); the rest of ``collect`` is bookkeeping
+    (frame stacks, sim-trace rows, building the segments)."""
+
+    def __init__(
+        self, run: RunConfig, config: EnvConfig, seeds: Sequence[int], segment_worker_ids: Sequence[str]
+    ) -> None:
+        self.run = run
+        self.envs: list[_Env] = [
+            _Env(RacerEnv(config=config), j, seed, wid, FrameStack(run.hyperparams.stack_size))
+            for j, (seed, wid) in enumerate(zip(seeds, segment_worker_ids, strict=True))
+        ]
+        env = self.envs[0].env
+        self.actions = env.actions
+        self.obs_spec: ObsSpec = observation_spec(env.actions.sensor, run.hyperparams.stack_size)
+        self.obs_shape = self.obs_spec.camera_shape(camera_frame_size(env.observation_space))
+        self.env_steps = 0
+        """Env steps of all envs so far."""
+        self.time_s: dict[str, float] = {"collect": 0.0, "act": 0.0, "env": 0.0}
+
+    @property
+    def track_name(self) -> str:
+        """The track the envs drive (a worker's envs share its track)."""
+        return self.envs[0].env.track.name
+
+    @property
+    def episodes(self) -> int:
+        """Episodes finished by all envs so far."""
+        return sum(e.episode for e in self.envs)
+
+    def build_policy(self) -> ActorCritic:
+        """A network for these envs' observations and actions (its weights to be loaded), in eval mode."""
+        model = build_policy(self.obs_shape, action_space_spec(self.actions), self.run.policy, self.actions.sensor)
+        model.eval()
+        return model
+
+    def reset(self) -> None:
+        """Start every env's first episode from its seed."""
+        for e in self.envs:
+            observation, info = e.env.reset(seed=e.seed)
+            e.observe(observation, first=True)
+            e.simtrace.reset(info, self._trace_episode(e))
+            e.ep_reward = 0.0
+
+    def collect(self, actor: Actor, policy_version: int) -> list[Segment]:
+        """``segment_steps`` steps of every env, acted by ``actor`` (the network of ``policy_version``) in one batched
+        forward pass per step for all envs; one segment per env, in env order."""
+        started = time.perf_counter()
+        clock, envs = self.time_s, self.envs
+        ros = [_Rollout() for _ in envs]
+        for _ in range(self.run.segment_steps):
+            t0 = time.perf_counter()
+            actions, logps, values = actor.act_numpy(
+                _batch([e.obs for e in envs]), lidar=_lidar_batch([e.lidar for e in envs])
+            )
+            clock["act"] += time.perf_counter() - t0
+            truncated: list[tuple[_Rollout, int, np.ndarray, np.ndarray | None]] = []
+            for e, ro, action, logp, value in zip(envs, ros, actions, logps, values, strict=True):
+                ro.obs.append(e.obs)
+                if e.lidar is not None:
+                    ro.lidar.append(e.lidar)
+                ro.actions.append(action)
+                ro.logp.append(logp)
+                ro.values.append(value)
+                ro.episode_id.append(e.episode)
+                t0 = time.perf_counter()
+                observation, reward, term, trunc, info = e.env.step(action)
+                clock["env"] += time.perf_counter() - t0
+                e.simtrace.step(action, info, reward, term or trunc)
+                e.ep_reward += reward
+                ro.rewards.append(reward)
+                ro.terminated.append(term)
+                ro.truncated.append(trunc)
+                if term or trunc:
+                    # The final observation is pushed onto the stack only to bootstrap a truncated step's value.
+                    camera, lidar = split_observation(observation)
+                    final = e.stack.push(camera)
+                    if trunc:
+                        truncated.append((ro, len(ro.next_values), final, lidar))
+                    ro.next_values.append(0.0)  # a truncated step's value is set below
+                    ro.episodes.append(self._summary(e, info))
+                    self._new_episode(e)
+                else:
+                    e.observe(observation)
+                    ro.next_values.append(None)  # V(o_{t+1}) is the next step's value
+            if truncated:  # the envs whose episode hit its time limit this step, valued together
+                bootstrap = self._values(actor, [t[2] for t in truncated], [t[3] for t in truncated])
+                for (ro, t, _, _), v in zip(truncated, bootstrap, strict=True):
+                    ro.next_values[t] = v
+        self.env_steps += self.run.segment_steps * len(envs)
+        segments = self._segments(actor, policy_version, ros)
+        clock["collect"] += time.perf_counter() - started
+        return segments
+
+    def _segments(self, actor: Actor, policy_version: int, ros: list[_Rollout]) -> list[Segment]:
+        # V(o_T) of every env whose segment ends inside an episode, in one forward pass.
+        ending = [i for i, ro in enumerate(ros) if ro.next_values[-1] is None]
+        if ending:
+            last = self._values(actor, [self.envs[i].obs for i in ending], [self.envs[i].lidar for i in ending])
+            for i, v in zip(ending, last, strict=True):
+                ros[i].next_values[-1] = v
+        return [self._segment(e, ro, policy_version) for e, ro in zip(self.envs, ros, strict=True)]
+
+    def _segment(self, e: _Env, ro: _Rollout, policy_version: int) -> Segment:
+        values = np.asarray(ro.values, np.float32)
+        nxt = [v if v is not None else values[t + 1] for t, v in enumerate(ro.next_values)]
+        actions = np.asarray(ro.actions)
+        arrays = {
+            "obs": np.stack(ro.obs),
+            "next_obs": e.obs[None],
+            "actions": actions.astype(np.int64 if self.actions.discrete else np.float32),
+            "rewards": np.asarray(ro.rewards, np.float32),
+            "terminated": np.asarray(ro.terminated, np.uint8),
+            "truncated": np.asarray(ro.truncated, np.uint8),
+            "logp": np.asarray(ro.logp, np.float32),
+            "values": values,
+            "next_values": np.asarray(nxt, np.float32),
+            "episode_id": np.asarray(ro.episode_id, np.int64),
+        }
+        if self.obs_spec.lidar:
+            arrays["lidar"] = np.stack(ro.lidar)
+            arrays["next_lidar"] = e.lidar[None]
+        return Segment(self.run.run_id, e.segment_worker_id, policy_version, e.seed, arrays, ro.episodes)
+
+    def _values(self, actor: Actor, obs: list[np.ndarray], lidar: list[np.ndarray | None]) -> list[float]:
+        """V(o) of stacked camera observations and their LiDAR vectors, in one forward pass."""
+        t0 = time.perf_counter()
+        values = actor.act_numpy(_batch(obs), lidar=_lidar_batch(lidar))[2]
+        self.time_s["act"] += time.perf_counter() - t0
+        return [float(v) for v in values]
+
+    def _summary(self, e: _Env, info: dict) -> EpisodeSummary:
+        p = info["params"]
+        status = info["episode_status"]
+        lap = p["sim_time"] if status == "lap_complete" else None
+        return EpisodeSummary(e.episode, info["steps"], p["progress"], e.ep_reward, status, e.env.track.name, lap)
+
+    def _new_episode(self, e: _Env) -> None:
+        e.episode += 1
+        e.ep_reward = 0.0
+        observation, info = e.env.reset()
+        e.observe(observation, first=True)
+        e.simtrace.reset(info, self._trace_episode(e))
+
+    def _trace_episode(self, e: _Env) -> int:
+        """The sim-trace ``episode`` of env j's n-th episode: n·K + j (see :meth:`take_simtrace`)."""
+        return e.episode * len(self.envs) + e.index
+
+    def take_simtrace(self, include_open: bool = False) -> str | None:
+        """The CSV of the sim-trace rows recorded since the last take (with ``include_open``, the episodes in
+        progress too), None if there are none (``common.simtrace.merged_csv``).
+
+        The K envs write one file, the one a one-env worker writes (``{k}/training-simtrace/{N}-iteration.csv``),
+        not one folder each: deepracer-utils reads worker folders 0-9 only (``common/simtrace.py``), which K folders
+        per worker would soon pass, and a worker is what DeepRacer's layout calls a worker. Env j's n-th episode is
+        episode n·K + j, unique within the worker (deepracer-utils groups by worker and episode) and, with one env,
+        the episode numbers a worker always wrote; each episode's rows are whole and in order, episodes in the
+        order of their numbers."""
+        return merged_csv([e.simtrace for e in self.envs], include_open)
+
+    def close(self) -> None:
+        """Release the envs."""
+        for e in self.envs:
+            e.env.close()
+
+
+def _batch(arrays: list[np.ndarray]) -> np.ndarray:
+    """The arrays as a batch; one array as a view of itself, as a one-env worker always passed it (the same memory
+    to the network gives the same float rounding, so K = 1 pushes bit for bit what it did)."""
+    return arrays[0][None] if len(arrays) == 1 else np.stack(arrays)
+
+
+def _lidar_batch(lidar: list[np.ndarray | None]) -> np.ndarray | None:
+    """A batch of LiDAR vectors, or None for a network without a LiDAR."""
+    return None if lidar[0] is None else _batch(lidar)  # type: ignore[arg-type]
+
+
 class RolloutWorker:
-    """One worker process's state: env, policy, Redis and store handles."""
+    """One worker process's state: its envs, the policy, Redis and store handles."""
 
     def __init__(self, opts: WorkerOptions, stop: threading.Event | None = None) -> None:
         self.opts = opts
@@ -89,31 +332,35 @@ class RolloutWorker:
             opts.worker_index = self.redis_outage.call("take a worker index", self.bus.take_worker_slot)
         self.worker_id = opts.worker_id or f"{socket.gethostname()}-{os.getpid()}-{opts.worker_index}"
         self.policy_version = -1
-        self.env_steps = 0
         self.segments = 0
-        self._episode = 0
+        self.rollouts: Rollouts | None = None
+        self._acting: tuple[int, Actor] | None = None
+        """(policy version, the copy of the network that acts for it)."""
         self._workdir = tempfile.TemporaryDirectory(prefix="racer-worker-")
-        self.simtrace = SimTraceRecorder()  # DeepRacer sim-trace rows of the current iteration
+
+    @property
+    def env_steps(self) -> int:
+        """Env steps of all this worker's envs so far."""
+        return self.rollouts.env_steps if self.rollouts else 0
+
+    @property
+    def episodes(self) -> int:
+        """Episodes finished by all this worker's envs so far."""
+        return self.rollouts.episodes if self.rollouts else 0
 
     # --- set-up -------------------------------------------------------------------------------
     def start(self) -> None:
-        """Wait for the first policy, then build the env and the network from the run's files."""
+        """Wait for the first policy, then build the envs and the network from the run's files."""
         first = self._wait_for_policy()
         self.run: RunConfig = self.store_outage.call("read the run", partial(self.runs.read_config, self.opts.run_id))
-        self.env = RacerEnv(config=self.store_outage.call("read the run's files", self._env_config))
-        self.stack = FrameStack(self.run.hyperparams.stack_size)
-        sensors = self.env.actions.sensor
-        self.obs_spec: ObsSpec = observation_spec(sensors, self.run.hyperparams.stack_size)
-        obs_shape = self.obs_spec.camera_shape(camera_frame_size(self.env.observation_space))
-        action_spec = action_space_spec(self.env.actions)
-        self.model: ActorCritic = build_policy(obs_shape, action_spec, self.run.policy, sensors)
-        self.model.eval()
+        config = self.store_outage.call("read the run's files", self._env_config)
+        k, n = self.opts.worker_index, self.opts.envs_per_worker
+        seeds = [self.run.seed + ENV_SEED_STRIDE * k + j for j in range(n)]
+        self.rollouts = Rollouts(self.run, config, seeds, segment_worker_ids(self.worker_id, n))
+        log.info("worker %s: %d env(s) on %s, seeds %s", self.worker_id, n, self.rollouts.track_name, seeds)
+        self.model: ActorCritic = self.rollouts.build_policy()
         self._load(first)
-        self.seed = self.run.seed + 1000 * self.opts.worker_index
-        observation, info = self.env.reset(seed=self.seed)
-        self._observe(observation, first=True)
-        self.simtrace.reset(info, self._episode)
-        self._ep_reward = 0.0
+        self.rollouts.reset()
 
     def _env_config(self) -> EnvConfig:
         """The run's env (reward function and action space from the store), in this worker's own world."""
@@ -147,9 +394,9 @@ class RolloutWorker:
     def run_forever(self) -> None:
         """Collect and push segments until stopped."""
         while not self.stop.is_set():
-            seg = self.collect()
-            # Through a Redis outage the segment waits here, whole; it is never sent in parts.
-            self.redis_outage.call("push a segment", partial(self.push, seg))
+            segments = self.collect()
+            # Through a Redis outage the segments wait here, whole; they are never sent in parts.
+            self.redis_outage.call("push segments", partial(self.push, segments))
             if not self.redis_outage.call("poll the policy", self.poll_policy):
                 self.redis_outage.call("wait for the update", self.wait_while_training)
 
@@ -169,97 +416,22 @@ class RolloutWorker:
             self.stop.wait(0.05)
         self.poll_policy()
 
-    def collect(self) -> Segment:
-        """Run ``segment_steps`` env steps with the current policy."""
-        ro = _Rollout()
-        for _ in range(self.run.segment_steps):
-            action, logp, value = self.model.act_numpy(self.obs[None], lidar=self._lidar_batch(self.lidar))
-            ro.obs.append(self.obs)
-            if self.lidar is not None:
-                ro.lidar.append(self.lidar)
-            ro.actions.append(action[0])
-            ro.logp.append(logp[0])
-            ro.values.append(value[0])
-            ro.episode_id.append(self._episode)
-            observation, reward, term, trunc, info = self.env.step(action[0])
-            self.simtrace.step(action[0], info, reward, term or trunc)
-            self._ep_reward += reward
-            ro.rewards.append(reward)
-            ro.terminated.append(term)
-            ro.truncated.append(trunc)
-            if term or trunc:
-                # The final observation is pushed onto the stack only to bootstrap a truncated step's value.
-                camera, lidar = split_observation(observation)
-                final = self.stack.push(camera)
-                ro.next_values.append(self._value(final, lidar) if trunc else 0.0)
-                ro.episodes.append(self._summary(info))
-                self._new_episode()
-            else:
-                self._observe(observation)
-                ro.next_values.append(None)  # V(o_{t+1}) is the next step's value
-        self.env_steps += self.run.segment_steps
-        return self._segment(ro)
+    def collect(self) -> list[Segment]:
+        """Run ``segment_steps`` steps of each env with the current policy: one segment per env."""
+        return self.rollouts.collect(self._actor(), self.policy_version)
 
-    def _segment(self, ro: _Rollout) -> Segment:
-        values = np.asarray(ro.values, np.float32)
-        nxt = [
-            v if v is not None else (values[t + 1] if t + 1 < len(values) else None)
-            for t, v in enumerate(ro.next_values)
-        ]
-        if nxt[-1] is None:
-            nxt[-1] = self._value(self.obs, self.lidar)
-        actions = np.asarray(ro.actions)
-        arrays = {
-            "obs": np.stack(ro.obs),
-            "next_obs": self.obs[None],
-            "actions": actions.astype(np.int64 if self.env.actions.discrete else np.float32),
-            "rewards": np.asarray(ro.rewards, np.float32),
-            "terminated": np.asarray(ro.terminated, np.uint8),
-            "truncated": np.asarray(ro.truncated, np.uint8),
-            "logp": np.asarray(ro.logp, np.float32),
-            "values": values,
-            "next_values": np.asarray(nxt, np.float32),
-            "episode_id": np.asarray(ro.episode_id, np.int64),
-        }
-        if self.obs_spec.lidar:
-            arrays["lidar"] = np.stack(ro.lidar)
-            arrays["next_lidar"] = self.lidar[None]
-        return Segment(self.opts.run_id, self.worker_id, self.policy_version, self.seed, arrays, ro.episodes)
+    def _actor(self) -> Actor:
+        """The copy of the loaded network that acts (``rollout_worker/onnx_policy.py``), made once per version."""
+        if self._acting is None or self._acting[0] != self.policy_version:
+            self._acting = (self.policy_version, acting_copy(self.model))
+        return self._acting[1]
 
-    def _value(self, obs: np.ndarray, lidar: np.ndarray | None) -> float:
-        """V(o) of one stacked camera observation and its LiDAR vector (None without a LiDAR)."""
-        return float(self.model.act_numpy(obs[None], lidar=self._lidar_batch(lidar))[2][0])
-
-    @staticmethod
-    def _lidar_batch(lidar: np.ndarray | None) -> np.ndarray | None:
-        """A batch of one LiDAR vector, or None for a network without a LiDAR."""
-        return None if lidar is None else lidar[None]
-
-    def _observe(self, observation: np.ndarray | dict, first: bool = False) -> None:
-        """Take an env observation apart: its camera frame onto the stack (``self.obs``), its LiDAR vector (not
-        stacked, as in DeepRacer) into ``self.lidar``."""
-        camera, self.lidar = split_observation(observation)
-        self.obs = self.stack.reset(camera) if first else self.stack.push(camera)
-
-    def _summary(self, info: dict) -> EpisodeSummary:
-        p = info["params"]
-        status = info["episode_status"]
-        lap = p["sim_time"] if status == "lap_complete" else None
-        return EpisodeSummary(
-            self._episode, info["steps"], p["progress"], self._ep_reward, status, self.env.track.name, lap
-        )
-
-    def _new_episode(self) -> None:
-        self._episode += 1
-        self._ep_reward = 0.0
-        observation, info = self.env.reset()
-        self._observe(observation, first=True)
-        self.simtrace.reset(info, self._episode)
-
-    def push(self, seg: Segment) -> None:
-        """Send a segment (one atomic XADD, capped stream) and refresh the heartbeat."""
-        self.bus.push_segment(encode_segment(seg), self._heartbeat(1), self.run.stream_maxlen, self._heartbeat_ex())
-        self.segments += 1
+    def push(self, segments: list[Segment]) -> None:
+        """Send a collect's segments (one XADD each to the capped stream, all in one round trip) and refresh the
+        heartbeat."""
+        fields = [encode_segment(seg) for seg in segments]
+        self.bus.push_segments(fields, self._heartbeat(len(segments)), self.run.stream_maxlen, self._heartbeat_ex())
+        self.segments += len(segments)
 
     def beat(self) -> None:
         """Refresh the heartbeat without sending a segment (while waiting for the trainer)."""
@@ -277,7 +449,7 @@ class RolloutWorker:
             env_steps=self.env_steps,
             segments=self.segments + sending,
             time=time.time(),
-            track=self.env.track.name,
+            track=self.rollouts.track_name,
             policy_loaded_at=self.policy_loaded_at,
             max_rss_mb=peak_rss_mb(),
         )
@@ -296,11 +468,10 @@ class RolloutWorker:
         return True
 
     def close(self) -> None:
-        """Upload the last (partial) iteration's sim-trace; release the env, the Redis connections and the temporary
-        files."""
+        """Upload the last (partial) iteration's sim-trace; release the envs and the temporary files."""
         self._upload_simtrace(include_open=True)
-        if hasattr(self, "env"):
-            self.env.close()
+        if self.rollouts is not None:
+            self.rollouts.close()
         self._workdir.cleanup()
 
     # --- DeepRacer sim-traces (common/simtrace.py) ----------------------------------------------
@@ -308,7 +479,7 @@ class RolloutWorker:
         """Put the rows recorded with ``policy_version`` in ``runs/<id>/<k>/training-simtrace/<version>-iteration.csv``.
 
         One small object per iteration (a few ms on a local store). A failed upload loses that log, not the run."""
-        text = self.simtrace.take(include_open)
+        text = self.rollouts.take_simtrace(include_open) if self.rollouts is not None else None
         if text is None or self.policy_version < 0:
             return
         try:

@@ -98,7 +98,7 @@ def _physics_us(env: RacerEnv, steps: int) -> float:
     return total / steps * 1e6
 
 
-def _parts(env: RacerEnv, steps: int, extended: bool = False) -> dict[str, float | None]:
+def env_parts_us(env: RacerEnv, steps: int, extended: bool = False) -> dict[str, float | None]:
     """Microseconds per step of each part, timed separately on the same code the env runs. ``extended`` adds
     ``lidar`` (the scan and its observation) and ``objects`` (the race's objects each step), None where the env
     has none; the camera is then the camera alone (without, it is the whole observation, as it always was)."""
@@ -177,7 +177,7 @@ def bench_env(
     rng = np.random.default_rng(seed)
     _timed_steps(env, 200, rng)  # warm caches and allocators
     rates = [steps / _timed_steps(env, steps, rng) for _ in range(repeats)]
-    parts = [_parts(env, max(200, steps // 4), extended) for _ in range(repeats)]
+    parts = [env_parts_us(env, max(200, steps // 4), extended) for _ in range(repeats)]
     env.close()
     result: dict = {
         "steps_per_s": statistics.median(rates),

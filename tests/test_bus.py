@@ -49,10 +49,14 @@ def test_policy_round_trips_and_a_malformed_one_is_a_protocol_error(redis_url, r
 def test_segments_travel_in_order_and_are_freed_once_read(redis_url, run_id):
     bus = Bus(redis.Redis.from_url(redis_url), run_id)
     seg = make_segment(run_id)
-    for _ in range(3):
-        bus.push_segment(encode_segment(seg), heartbeat("w0"), maxlen=100, heartbeat_ttl_s=5)
+    bus.push_segments([encode_segment(seg)], heartbeat("w0"), maxlen=100, heartbeat_ttl_s=5)
+    # A worker with several envs pushes a segment per env in one round trip, in order.
+    segs = [make_segment(run_id) for _ in range(2)]
+    segs[1].policy_version = 7
+    bus.push_segments([encode_segment(s) for s in segs], heartbeat("w0"), maxlen=100, heartbeat_ttl_s=5)
     entries = bus.read_segments("0-0", count=10, block_ms=10)
     assert len(entries) == 3 and bus.segments_queued() == 3
+    assert json.loads(entries[2][1][b"header"])["policy_version"] == 7
     assert [h.worker_id for h in bus.heartbeats()[0]] == ["w0"]  # the push refreshed the heartbeat
     bus.drop_segments_through(entries[-1][0])
     assert bus.read_segments(entries[-1][0], count=10, block_ms=10) == []

@@ -103,7 +103,7 @@ def test_a_lidar_run_pushes_lidar_segments_the_trainer_accepts_and_trains_on(
     try:
         assert trainer.obs_spec == spec and trainer.obs_shape == spec.camera_shape((120, 160))
         assert trainer.model.lidar_size == spec.lidar_size == LIDARS[sensors[1]].size
-        seg = worker.collect()
+        [seg] = worker.collect()
         a = seg.arrays
         assert a["obs"].shape == (16, *trainer.obs_shape) and a["next_obs"].shape == (1, *trainer.obs_shape)
         assert a["lidar"].shape == (16, spec.lidar_size) and a["next_lidar"].shape == (1, spec.lidar_size)
@@ -112,7 +112,7 @@ def test_a_lidar_run_pushes_lidar_segments_the_trainer_accepts_and_trains_on(
         wire = decode_segment(encode_segment(seg), run_id, trainer.obs_shape, trainer.n_actions, spec.lidar)
         assert np.array_equal(wire.arrays["lidar"], a["lidar"])
 
-        worker.push(seg)
+        worker.push([seg])
         assert trainer.read(block_ms=500) == 1
         assert "lidar" in trainer.buffer[0].arrays
         for _ in range(60):

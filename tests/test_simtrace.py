@@ -285,7 +285,7 @@ def rollout(redis_server, tmp_path_factory):
         "store": store,
         "run_id": run_id,
         "env_steps": worker.env_steps,
-        "finished": worker._episode,
+        "finished": worker.episodes,
         "lines": handler.lines,
     }
 

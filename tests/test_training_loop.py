@@ -99,9 +99,9 @@ def test_an_iteration_publishes_a_version_the_worker_switches_to(redis_url, run_
 
 def test_stale_and_malformed_segments_are_dropped_and_counted(redis_url, run_id, tmp_path, hp_file):
     trainer, worker = start(run_id, redis_url, str(tmp_path / "store"), hp_file, max_policy_lag=0)
-    seg = worker.collect()
+    [seg] = worker.collect()
     trainer.version = 1  # as if the trainer had moved on while the worker was still acting with v0
-    worker.push(seg)
+    worker.push([seg])
     r = redis.Redis.from_url(redis_url)
     r.xadd(Keys(run_id).segments, {"header": b"not json"})
     r.xadd(Keys(run_id).segments, {"junk": b"1"})
@@ -115,9 +115,9 @@ def test_stale_and_malformed_segments_are_dropped_and_counted(redis_url, run_id,
 def test_a_segment_that_reaches_the_stream_twice_is_counted_once(redis_url, run_id, tmp_path, hp_file):
     """A push cut off mid-way is retried while TCP may still deliver the first copy: the second is dropped."""
     trainer, worker = start(run_id, redis_url, str(tmp_path / "store"), hp_file)
-    seg = worker.collect()
-    worker.push(seg)
-    worker.push(seg)  # the same bytes again, as a late first copy would arrive
+    segments = worker.collect()
+    worker.push(segments)
+    worker.push(segments)  # the same bytes again, as a late first copy would arrive
     worker.push(worker.collect())
     assert trainer.read(block_ms=500) == 2
     assert trainer.stats.dropped == {"duplicate": 1}
@@ -195,10 +195,10 @@ def test_continuous_actions_and_frame_stacking(redis_url, run_id, tmp_path):
     trainer.start()
     worker = RolloutWorker(WorkerOptions(run_id, redis_url, store))
     worker.start()
-    seg = worker.collect()
+    [seg] = worker.collect()
     assert seg.arrays["obs"].shape == (16, 120, 160, 2)
     assert seg.arrays["actions"].dtype == np.float32 and seg.arrays["actions"].shape == (16, 2)
-    worker.push(seg)
+    worker.push([seg])
     fill(trainer, worker)
     assert np.isfinite(list(trainer.train().values())).all()
     assert worker.poll_policy() and worker.policy_version == 1

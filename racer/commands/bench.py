@@ -346,6 +346,52 @@ def update(
     write_json(result, json_out)
 
 
+@app.command("worker")
+def worker(
+    envs_per_worker: Annotated[
+        str, typer.Option("--envs-per-worker", help="Comma-separated K: envs per worker to time, interleaved.")
+    ] = "1,4,8",
+    seconds: Annotated[float, typer.Option(min=0.1, help="Length of one timed run, seconds.")] = 5.0,
+    repeats: Annotated[int, typer.Option(min=1, help="Timed runs per K; the median is reported.")] = 5,
+    track: Track = DEFAULT_TRACK,
+    acting: Annotated[str, typer.Option(help="What acts: onnx (the worker's ONNX Runtime copy) or torch.")] = "onnx",
+    json_out: JsonOut = None,
+) -> None:
+    """A rollout worker's env steps/s on one core with K envs per worker (no Redis), and where a step's time goes."""
+    from common.config import MAX_ENVS_PER_WORKER
+    from racer.bench_worker import bench_worker
+
+    ks = int_list(envs_per_worker, "--envs-per-worker")
+    bad = [k for k in ks if not 1 <= k <= MAX_ENVS_PER_WORKER]
+    if bad or len(set(ks)) != len(ks):
+        raise OptionError(
+            f"--envs-per-worker takes distinct integers from 1 to {MAX_ENVS_PER_WORKER} (got {envs_per_worker!r})"
+        )
+    if acting not in ("onnx", "torch"):
+        raise OptionError(f"--acting must be onnx or torch (got {acting!r})")
+    result = bench_worker(ks, seconds, repeats, track, acting)
+    table = Table("K", "env steps/s (median)", f"vs K={ks[0]}", "act µs/step", "env µs/step", "bookkeeping µs/step")
+    for k, r in result["per_k"].items():
+        us = r["us_per_step"]
+        table.add_row(
+            k,
+            f"{r['steps_per_s']:.0f}",
+            f"{r['speedup_vs_first']:.2f}×",
+            f"{us['act']:.0f}",
+            f"{us['env']:.0f}",
+            f"{us['bookkeeping']:.0f}",
+        )
+    console.print(table)
+    act = result["act_ms"]
+    console.print(
+        "forward pass + sampling, ms per batch (torch / onnxruntime): "
+        + ", ".join(f"B={b} {act['torch'][b]:.2f} / {act['onnxruntime'][b]:.2f}" for b in act["torch"]),
+        highlight=False,
+    )
+    console.print(f"acting with {result['acting']} on {result['machine']['cpu']}", highlight=False)
+    write_json(result, json_out)
+
+
 @app.command("soak")
 def soak(
     duration: Annotated[str, typer.Option(help="Run time (90s, 10m, 2h).")] = "10m",

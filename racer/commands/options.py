@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.measure import Measurement
 from rich.table import Table
 
+from common.config import MAX_ENVS_PER_WORKER
 from common.errors import OptionError
 from trainer.device import DEVICE_HELP
 
@@ -101,6 +102,16 @@ WorkerConfig = Annotated[
     ),
 ]
 Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Debug logging.")]
+EnvsPerWorker = Annotated[
+    int,
+    typer.Option(
+        "--envs-per-worker",
+        min=1,
+        max=MAX_ENVS_PER_WORKER,
+        envvar="RACER_ENVS_PER_WORKER",
+        help="Envs each rollout worker steps side by side, acting for all in one batched forward pass.",
+    ),
+]
 
 
 def device_option(envvar: str | None = None) -> object:

@@ -12,6 +12,7 @@ from common.config import PRECISION_HELP
 from common.defaults import DEFAULT_TRACK
 from racer.commands.options import (
     Endpoint,
+    EnvsPerWorker,
     Outage,
     Redis,
     RunId,
@@ -94,6 +95,7 @@ def worker(
     s3_endpoint: Endpoint = None,
     index: Annotated[int | None, typer.Option(envvar="RACER_WORKER_INDEX", help="Worker index (seed, track).")] = None,
     worker_id: Annotated[str, typer.Option("--worker-id", envvar="RACER_WORKER_ID")] = "",
+    envs_per_worker: EnvsPerWorker = 1,
     outage_timeout: Outage = "10m",
     simtrace_log: Annotated[
         bool,
@@ -114,7 +116,14 @@ def worker(
     setup_logging(verbose, simtrace_lines=simtrace_log)
     # Without --index, the worker takes the next free index from Redis (scaled compose workers: 0, 1, …).
     opts = WorkerOptions(
-        run_id, redis_url, store, s3_endpoint, index, worker_id, outage_s=parse_duration(outage_timeout)
+        run_id,
+        redis_url,
+        store,
+        s3_endpoint,
+        index,
+        worker_id,
+        outage_s=parse_duration(outage_timeout),
+        envs_per_worker=envs_per_worker,
     )
     run_worker(opts, stop_event_on_signals())
 

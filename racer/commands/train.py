@@ -14,6 +14,7 @@ from racer.commands.options import (
     ActionSpace,
     Car,
     Endpoint,
+    EnvsPerWorker,
     FromDrfc,
     Hyperparams,
     RaceFile,
@@ -46,6 +47,7 @@ def train(
             show_default="2",
         ),
     ] = None,
+    envs_per_worker: EnvsPerWorker = 1,
     time_limit: Annotated[
         str | None,
         typer.Option(
@@ -133,8 +135,10 @@ def train(
         eval_tracks=eval_track or [],
         precision=precision,
         device=device,
+        envs_per_worker=envs_per_worker,
     )
-    console.print(f"run [bold]{rid}[/]: {workers} workers on {run.env.track}, store {store}")
+    envs = f" × {envs_per_worker} envs" if envs_per_worker > 1 else ""
+    console.print(f"run [bold]{rid}[/]: {workers} workers{envs} on {run.env.track}, store {store}")
     status = run_train(run, opts, files, console)
     try:
         for line in [done_line(runs, rid, status.get("trained_s", 0.0)), *run_summary(rid, runs, store, s3_endpoint)]:
