@@ -11,7 +11,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from common.car_calibration import CarCalibration
-from common.defaults import DEFAULT_TRACK
+from common.defaults import DEFAULT_TRACK, MAX_SEGMENT_STEPS
 from common.errors import OptionError, UserError
 from common.hyperparams import GreedyAction, Hyperparameters
 from common.race import RaceConfig
@@ -223,13 +223,14 @@ class RunConfig(_Strict):
     worker_envs: list[WorkerEnv] = Field(default_factory=list)
     """Per-worker worlds (``--worker-track``, ``--worker-config``, DRfC's DR_TRAIN_MULTI_CONFIG): worker k drives
     ``worker_envs[k % len]`` applied to ``env``; empty = every worker in ``env``. The evaluator drives ``env``."""
-    segment_steps: int = Field(32, ge=1, le=4096)
+    segment_steps: int = Field(32, ge=1, le=MAX_SEGMENT_STEPS)
     """Env steps per segment pushed to Redis."""
     max_policy_lag: int = Field(0, ge=0)
     """The trainer drops segments whose policy is more than this many versions old. 0 = on-policy as in DeepRacer:
     workers wait during a PPO update instead of collecting data that would be dropped."""
     stream_maxlen: int = Field(128, ge=4)
-    """Approximate cap of the segment stream, entries (bounds Redis memory: ~0.6 MB per 32-step segment)."""
+    """Approximate cap of the segment stream, entries (bounds Redis memory: a 32-step segment of the default run is
+    ~50 kB on the wire, common/protocol.py)."""
     heartbeat_ttl_s: float = Field(15.0, gt=0)
     """A worker that has not sent a heartbeat for this long is reported silent, seconds."""
     seed: int = 0

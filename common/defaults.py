@@ -6,3 +6,7 @@ a fresh machine trains with no download and no network."""
 
 STRAIGHT_TRACK = "racer_straight"
 """racer's open track (a straight line, no lap), for what needs a track without a lap."""
+
+MAX_SEGMENT_STEPS = 4096
+"""The most env steps one segment may carry: the bound of ``RunConfig.segment_steps``, and what the trainer's decoder
+accepts (it bounds the memory a segment's compressed frames may expand to)."""

@@ -42,7 +42,8 @@ dict is the same as before LiDAR existed; a network with a LiDAR has ``camera_em
 layers), ``lidar_embedder`` and ``middleware`` instead.
 
 Checkpoints are serialized with ``torch.save`` and read back with ``torch.load(weights_only=True)``, which
-refuses any pickled object other than tensors and plain containers. ``load_policy`` is the one way to get a stored
+refuses any pickled object other than tensors and plain containers; so is a checkpoint's acting copy (float16
+weights, :func:`acting_to_bytes`), what rollout workers load. ``load_policy`` is the one way to get a stored
 checkpoint's network for acting (the evaluator, ``racer eval``, ``racer export``).
 """
 
@@ -488,6 +489,36 @@ def checkpoint_from_bytes(data: bytes) -> tuple[dict[str, Any], dict[str, Any] |
     if optimizer is not None and not isinstance(optimizer, dict):
         raise CheckpointError(f"checkpoint 'optimizer' is a {type(optimizer).__name__}, not a state dict")
     return ckpt["model"], optimizer
+
+
+ACTING_DTYPE = torch.float16
+"""The dtype of a policy's acting copy's weight matrices and kernels (:func:`acting_to_bytes`)."""
+_ACTING_MAX = torch.finfo(ACTING_DTYPE).max
+
+
+def acting_to_bytes(model_sd: dict[str, torch.Tensor]) -> bytes:
+    """The acting copy of a network's state dict, what a rollout worker downloads per policy version: every weight
+    matrix and conv kernel (a floating tensor of 2 or more dimensions: all but 683 of the default network's 5.85 M
+    weights) in float16, the rest (biases, BatchNorm statistics, the log-std, counters) as it is; no optimizer
+    state. Half the checkpoint's bytes. A tensor float16 cannot hold (a value beyond ±65504) stays float32.
+    ``torch.save`` bytes of ``{"acting": state_dict}``, read back by :func:`acting_from_bytes`."""
+    out = {}
+    for name, tensor in model_sd.items():
+        t = tensor.detach().to("cpu")
+        if t.is_floating_point() and t.dim() >= 2 and (t.numel() == 0 or t.abs().max() <= _ACTING_MAX):
+            t = t.to(ACTING_DTYPE)
+        out[name] = t
+    return state_dict_to_bytes({"acting": out})
+
+
+def acting_from_bytes(data: bytes) -> dict[str, torch.Tensor]:
+    """The state dict of :func:`acting_to_bytes` bytes in float32, to load into a network that acts in float32;
+    loads weights only (CheckpointError for anything else)."""
+    obj = _safe_load(data)
+    sd = obj.get("acting") if isinstance(obj, dict) else None
+    if not isinstance(sd, dict) or not all(isinstance(v, torch.Tensor) for v in sd.values()):
+        raise CheckpointError("not an acting copy: expected a dict with an 'acting' state dict of tensors")
+    return {name: t.float() if t.is_floating_point() else t for name, t in sd.items()}
 
 
 def misfit(model: nn.Module, state: dict[str, Any]) -> str | None:

@@ -1,11 +1,11 @@
 """The wire protocol between rollout workers and the trainer.
 
-A segment is a fixed number of consecutive env steps of one worker, sent as one Redis stream entry:
-a JSON ``header`` field plus one field of raw bytes per numpy array (C order, little-endian). Nothing
-is pickled. ``decode_segment`` validates everything it reads and raises ProtocolError with a short
-reason, which the trainer counts and logs before dropping the entry.
+A segment is a fixed number of consecutive env steps of one worker, sent as one Redis stream entry: a JSON
+``header`` field, one field of raw bytes per small numpy array (C order, little-endian) and one field of the camera
+frames, compressed. Nothing is pickled. ``decode_segment`` validates everything it reads and raises ProtocolError
+with a short reason, which the trainer counts and logs before dropping the entry.
 
-Arrays of a segment of T steps (obs shape (H, W, C), uint8):
+Arrays of a segment of T steps (obs shape (H, W, C), uint8), as ``Segment.arrays`` holds them on both sides:
 
 ==============  ========  =================  =====================================================
 name            dtype     shape              meaning
@@ -25,31 +25,60 @@ lidar           float32   (T, N)             the LiDAR part of o_t (only with a 
 next_lidar      float32   (1, N)             the LiDAR part of o_T (only with a LiDAR sensor)
 ==============  ========  =================  =====================================================
 
+On the wire (schema 2) every array but ``obs`` and ``next_obs`` is a field ``a:<name>`` of raw bytes. The T + 1
+camera observations travel as their distinct channel planes: a stacked observation's C channels are C planes of
+(H, W), and with frame stacking o_{t+1} shares all but one frame with o_t (an episode's first observation repeats
+its first frame), so each camera frame is sent once per segment, however many observations hold it:
+
+==============  ========  =================  =====================================================
+field           dtype     shape              meaning
+==============  ========  =================  =====================================================
+a:frames        uint8     (K, H, W)          the K distinct planes, in order of first appearance,
+                                             as one zstd frame (level 1, with its content size
+                                             and checksum); header ``frames``: codec, shape
+a:frame_index   uint16    (T + 1, C)         plane of channel c of observation t (row T: o_T);
+                                             uint32 only where K > 65536
+==============  ========  =================  =====================================================
+
+The decoder rebuilds ``obs`` and ``next_obs`` bit for bit (``planes[frame_index]``, channels last). It never
+inflates more than the header's shapes allow: K ≤ (T + 1)·C, T ≤ ``MAX_SEGMENT_STEPS``, H and W the trainer's own;
+the zstd frame must state exactly K·H·W bytes as its content size and decompress to exactly that, with no bytes
+after it.
+
 The camera part C is 1 (front camera) or 2 (stereo: left, right) channels per stacked frame; ``lidar`` and
 ``next_lidar`` are present exactly when the run's sensors include a LiDAR (``common.sensors``: N = 64 for
-``LIDAR``, values in [0.15, 1]; N = 8 for ``SECTOR_LIDAR``, values in [0, 1]), so a camera-only segment is the
-same as before LiDAR existed (schema 1).
+``LIDAR``, values in [0.15, 1]; N = 8 for ``SECTOR_LIDAR``, values in [0, 1]).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import ClassVar, Self
 
+import cv2
 import numpy as np
+import zstandard
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from common.defaults import MAX_SEGMENT_STEPS
 from common.sensors import LidarSpec
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 MAX_HEADER_BYTES = 1 << 16
+FRAME_CODEC = "zstd"
+"""The compression of ``a:frames``: zstd level 1 (``docs/speed.md``, "Wire", has the codecs measured against it)."""
+ZSTD_LEVEL = 1
+_KEY_STRIDE = 8
+"""The encoder looks a plane up by every 8th pixel of every 8th row (300 bytes of a 120×160 plane), then compares
+the whole plane: equal planes always have equal keys, and hashing 300 bytes is cheaper than hashing 19,200."""
+_CAMERA_ARRAYS = ("obs", "next_obs")
 
 _ARRAY_DTYPES: dict[str, tuple[str, ...]] = {
-    "obs": ("uint8",),
-    "next_obs": ("uint8",),
+    "frame_index": ("uint16", "uint32"),
     "actions": ("int64", "float32"),
     "rewards": ("float32",),
     "terminated": ("uint8",),
@@ -107,15 +136,20 @@ class Segment:
 
 
 def encode_segment(seg: Segment) -> dict[str, bytes]:
-    """Stream-entry fields for a segment: ``header`` JSON plus raw bytes per array."""
+    """Stream-entry fields for a segment: ``header`` JSON, raw bytes per small array, the camera frames compressed
+    (each distinct plane once; see the module docstring)."""
+    planes, index = frame_table(seg.arrays["obs"], seg.arrays["next_obs"])
+    arrays = {name: arr for name, arr in seg.arrays.items() if name not in _CAMERA_ARRAYS}
+    arrays["frame_index"] = index
     specs = {}
     fields: dict[str, bytes] = {}
-    for name, arr in seg.arrays.items():
+    for name, arr in arrays.items():
         a = np.ascontiguousarray(arr)
         if a.dtype == np.bool_:
             a = a.astype(np.uint8)
         specs[name] = {"dtype": str(a.dtype), "shape": list(a.shape)}
         fields[f"a:{name}"] = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes()
+    fields["a:frames"] = _deflate(planes)
     header = {
         "schema": SCHEMA_VERSION,
         "kind": "segment",
@@ -128,9 +162,65 @@ def encode_segment(seg: Segment) -> dict[str, bytes]:
         "episodes": [e.__dict__ for e in seg.episodes],
         "created": seg.created,
         "arrays": specs,
+        "frames": {"codec": FRAME_CODEC, "shape": [len(planes), *planes[0].shape]},
     }
     fields["header"] = json.dumps(header, separators=(",", ":")).encode()
     return fields
+
+
+def frame_table(*cameras: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """The distinct channel planes of stacked observations ``cameras`` (each (N_i, H, W, C) uint8, taken one after
+    the other: N observations in all), in order of first appearance, each a contiguous (H, W) array (a view of
+    ``cameras`` where C is 1), and the index (N, C) with observation i's channel c == ``planes[index[i, c]]``: a
+    frame shared by several stacked observations (or repeated within one) is kept once. Equality is exact (the
+    whole plane is compared), so :func:`frames_from_table` gives the observations back bit for bit."""
+    h, w, c = cameras[0].shape[1:]
+    # Channels first, so that each plane is one run of bytes to compare and compress (a copy only where C > 1).
+    planes = [p for cam in cameras for p in np.ascontiguousarray(cam.transpose(0, 3, 1, 2)).reshape(-1, h, w)]
+    index = np.empty(len(planes), np.int64)
+    kept: list[np.ndarray] = []
+    by_key: dict[bytes, list[int]] = {}
+    for m, plane in enumerate(planes):
+        same = by_key.setdefault(plane[::_KEY_STRIDE, ::_KEY_STRIDE].tobytes(), [])
+        k = next((k for k in same if np.array_equal(kept[k], plane)), None)
+        if k is None:
+            k = len(kept)
+            same.append(k)
+            kept.append(plane)
+        index[m] = k
+    dtype = np.uint16 if len(kept) <= 1 << 16 else np.uint32
+    return kept, index.reshape(-1, c).astype(dtype)
+
+
+def _deflate(planes: list[np.ndarray]) -> bytes:
+    """One zstd frame of the planes one after the other, streamed (never copied into one buffer first), stating
+    its content size."""
+    stream = _ZSTD.compressor.compressobj(size=sum(p.nbytes for p in planes))
+    return b"".join([*(stream.compress(p) for p in planes), stream.flush()])
+
+
+def frames_from_table(planes: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """The stacked observations (N, H, W, C) of :func:`frame_table`'s planes (K, H, W) and index (N, C)."""
+    n, c = index.shape
+    if c == 1:
+        if len(planes) == n and np.array_equal(index[:, 0], np.arange(n)):
+            return planes[..., None]  # one frame per observation, in order (one frame, no stacking): no copy
+        return planes[index[:, 0]][..., None]
+    out = np.empty((n, *planes.shape[1:], c), np.uint8)
+    for i in range(n):  # OpenCV interleaves channels many times faster than numpy's transposing copy
+        out[i] = cv2.merge([planes[k] for k in index[i]])
+    return out
+
+
+class _Zstd(threading.local):
+    """One zstd compressor and decompressor per thread (their contexts are not thread-safe, and are reused)."""
+
+    def __init__(self) -> None:
+        self.compressor = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_checksum=True, write_content_size=True)
+        self.decompressor = zstandard.ZstdDecompressor()
+
+
+_ZSTD = _Zstd()
 
 
 def decode_segment(
@@ -151,13 +241,15 @@ def decode_segment(
     if header.get("run_id") != run_id:
         raise ProtocolError("other_run", f"run_id {header.get('run_id')!r}")
     steps = header.get("steps")
-    if not isinstance(steps, int) or steps < 1:
+    if not isinstance(steps, int) or isinstance(steps, bool) or not 1 <= steps <= MAX_SEGMENT_STEPS:
         raise ProtocolError("bad_header", f"steps {steps!r}")
     arrays = {name: _array(f, header, name) for name in _ARRAY_DTYPES}
     if lidar is not None:
         arrays.update({name: _array(f, header, name, _LIDAR_DTYPES) for name in _LIDAR_DTYPES})
     else:
         _refuse_lidar(f, header)
+    camera = _camera(f, header, arrays.pop("frame_index"), steps, tuple(obs_shape))
+    arrays["obs"], arrays["next_obs"] = camera[:steps], camera[steps:]
     _check_shapes(arrays, steps, tuple(obs_shape), n_actions)
     if lidar is not None:
         _check_lidar(arrays, steps, lidar)
@@ -170,6 +262,54 @@ def decode_segment(
         episodes=_episodes(header),
         created=_created(header),
     )
+
+
+def _camera(f: dict[str, bytes], header: dict, index: np.ndarray, steps: int, obs_shape: tuple) -> np.ndarray:
+    """The T + 1 stacked observations (T + 1, H, W, C) from ``a:frames`` and the frame index, checked before a byte
+    is inflated: K·H·W is at most what the header's own shapes allow, and the zstd frame must say that size."""
+    if len(obs_shape) != 3:
+        raise ValueError(f"obs_shape {obs_shape} is not (H, W, C)")
+    height, width, channels = obs_shape
+    if index.shape != (steps + 1, channels):
+        raise ProtocolError("bad_shape", f"frame_index: {index.shape}, expected {(steps + 1, channels)}")
+    spec = header.get("frames")
+    raw = f.get("a:frames")
+    if not isinstance(spec, dict) or raw is None:
+        raise ProtocolError("missing_array", "frames")
+    if spec.get("codec") != FRAME_CODEC:
+        raise ProtocolError("bad_frames", f"codec {spec.get('codec')!r}, expected {FRAME_CODEC!r}")
+    shape = spec.get("shape")
+    if (
+        not isinstance(shape, list)
+        or len(shape) != 3
+        or not all(isinstance(v, int) and not isinstance(v, bool) for v in shape)
+        or shape[1:] != [height, width]
+        or not 1 <= shape[0] <= (steps + 1) * channels
+    ):
+        raise ProtocolError("bad_shape", f"frames: {shape!r} for {steps} steps of {obs_shape}")
+    count = shape[0]
+    if index.max() >= count:
+        raise ProtocolError("bad_frames", f"frame_index names plane {int(index.max())} of {count}")
+    planes = _inflate(raw, count * height * width).reshape(count, height, width)
+    return frames_from_table(planes, index)
+
+
+def _inflate(raw: bytes, size: int) -> np.ndarray:
+    """Exactly ``size`` bytes from one zstd frame that says it holds ``size`` bytes (checksum checked), or
+    ProtocolError: a frame claiming more (a decompression bomb) is refused before anything is allocated."""
+    try:
+        claimed = zstandard.frame_content_size(raw)
+    except zstandard.ZstdError as exc:
+        raise ProtocolError("corrupt", f"frames: {exc}") from None
+    if claimed != size:
+        raise ProtocolError("bad_length", f"frames: the zstd frame holds {claimed} bytes, the header's shapes {size}")
+    try:
+        out = _ZSTD.decompressor.decompress(raw, max_output_size=size, allow_extra_data=False)
+    except zstandard.ZstdError as exc:
+        raise ProtocolError("corrupt", f"frames: {exc}") from None
+    if len(out) != size:
+        raise ProtocolError("bad_length", f"frames: {len(out)} bytes, expected {size}")
+    return np.frombuffer(out, np.uint8)
 
 
 def _header(f: dict[str, bytes]) -> dict:
@@ -236,7 +376,7 @@ def _check_shapes(a: dict[str, np.ndarray], steps: int, obs_shape: tuple, n_acti
         "next_obs": (1, *obs_shape),
         "actions": (steps,) if n_actions is not None else (steps, 2),
     }
-    for name in _ARRAY_DTYPES:
+    for name in ("obs", "next_obs", *(n for n in _ARRAY_DTYPES if n != "frame_index")):
         want = expect.get(name, (steps,))
         if a[name].shape != want:
             raise ProtocolError("bad_shape", f"{name}: {a[name].shape}, expected {want}")

@@ -136,7 +136,7 @@ def events(path: str) -> dict[str, float]:
 
 PROTOCOL_DROPS = {
     "no_header", "bad_header", "schema", "other_run", "missing_array", "bad_dtype", "bad_shape", "bad_length",
-    "non_finite", "bad_action", "bad_flag", "bad_lidar",
+    "non_finite", "bad_action", "bad_flag", "bad_lidar", "bad_frames", "corrupt",
 }  # fmt: skip
 """The trainer's drop reasons for a malformed segment (common/protocol.py: decode_segment)."""
 

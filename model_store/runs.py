@@ -7,6 +7,9 @@
     runs/{run_id}/checkpoints/{version:09d}.optimizer.pt
                                                    the optimizer's state, kept only where a resume (the newest) or
                                                    the collapse guard's roll-back (the best) needs it
+    runs/{run_id}/checkpoints/{version:09d}.acting.pt
+                                                   the acting copy (float16 weights) rollout workers load; runs
+                                                   from before it existed have none, and workers read the .pt
     runs/{run_id}/latest.json, best.json           pointers: {"version": N, ...that checkpoint's metadata}
     runs/{run_id}/config.json                      the RunConfig (``write_config``/``read_config``)
     runs/{run_id}/metrics.jsonl                    one JSON row per training iteration (the trainer's;
@@ -15,8 +18,9 @@
                                                    ``read_evaluation``, ``read_evaluations``)
     runs/{run_id}/{name}                           run files: model_metadata.json, reward_function.py, ...
 
-A checkpoint is whole once its .json exists: the .pt is written first, then the .json, then (last) the pointer, so a
-crash at any point leaves every pointer naming a whole checkpoint. Readers ignore a .pt without its .json.
+A checkpoint is whole once its .json exists: the .pt (and its optimizer state and acting copy) is written first, then
+the .json, then (last) the pointer, so a crash at any point leaves every pointer naming a whole checkpoint. Readers
+ignore a .pt without its .json.
 """
 
 from __future__ import annotations
@@ -141,6 +145,11 @@ def optimizer_key(run_id: str, version: int) -> str:
     return f"{run_prefix(run_id)}checkpoints/{_check_version(version):09d}.optimizer.pt"
 
 
+def acting_key(run_id: str, version: int) -> str:
+    """Key of a checkpoint's acting copy: ``runs/{run_id}/checkpoints/{version:09d}.acting.pt``."""
+    return f"{run_prefix(run_id)}checkpoints/{_check_version(version):09d}.acting.pt"
+
+
 def pointer_key(run_id: str, name: str) -> str:
     """Key of the ``latest`` or ``best`` pointer: ``runs/{run_id}/{name}.json``."""
     return f"{run_prefix(run_id)}{_check_pointer(name)}.json"
@@ -197,10 +206,16 @@ class RunStore:
     # -- checkpoints ---------------------------------------------------------------------------------------------------
 
     def save_checkpoint(
-        self, run_id: str, version: int, payload: bytes, meta: dict[str, Any], optimizer: bytes | None = None
+        self,
+        run_id: str,
+        version: int,
+        payload: bytes,
+        meta: dict[str, Any],
+        optimizer: bytes | None = None,
+        acting: bytes | None = None,
     ) -> dict[str, Any]:
-        """Write the optimizer state (if given), the .pt, then its .json, then LAST the ``latest`` pointer; return
-        the full metadata.
+        """Write the optimizer state and the acting copy (each if given), the .pt, then its .json, then LAST the
+        ``latest`` pointer; return the full metadata.
 
         The metadata is ``meta`` plus ``run_id``, ``version``, ``size_bytes`` and ``created`` (epoch s, if absent).
         A whole checkpoint (its .json exists) is never overwritten: StoreError. A half-written one (a .pt left by a
@@ -217,6 +232,8 @@ class RunStore:
         if stored is None:
             if optimizer is not None:
                 self.store.put(optimizer_key(run_id, version), bytes(optimizer))
+            if acting is not None:
+                self.store.put(acting_key(run_id, version), bytes(acting))
             self.store.put(checkpoint_key(run_id, version), bytes(payload))
             self.store.put(meta_key, meta_bytes)
         self.store.put(pointer_key(run_id, "latest"), _dumps({**full, "version": version}))
@@ -233,6 +250,7 @@ class RunStore:
             self.store.delete(checkpoint_meta_key(run_id, v))
             self.store.delete(checkpoint_key(run_id, v))
             self.store.delete(optimizer_key(run_id, v))
+            self.store.delete(acting_key(run_id, v))
         return doomed
 
     def prune_run(self, run_id: str, keep_last: int, dry_run: bool = False) -> dict[str, Any]:
@@ -249,7 +267,12 @@ class RunStore:
         freed = sum(
             sizes.get(key, 0)
             for v in doomed
-            for key in (checkpoint_key(run_id, v), checkpoint_meta_key(run_id, v), optimizer_key(run_id, v))
+            for key in (
+                checkpoint_key(run_id, v),
+                checkpoint_meta_key(run_id, v),
+                optimizer_key(run_id, v),
+                acting_key(run_id, v),
+            )
         ) + sum(sizes.get(optimizer_key(run_id, v), 0) for v in optimizers)
         if not dry_run:
             self.prune_checkpoints(run_id, keep_last)
@@ -276,6 +299,11 @@ class RunStore:
     def load_optimizer(self, run_id: str, version: int) -> bytes | None:
         """The optimizer state saved with checkpoint ``version``, or None where it was not kept."""
         return self._get_or_none(optimizer_key(run_id, version))
+
+    def load_acting(self, run_id: str, version: int) -> bytes | None:
+        """The acting copy saved with checkpoint ``version``, or None where there is none (a run from before acting
+        copies, or a version pruned since): the caller then loads the checkpoint itself."""
+        return self._get_or_none(acting_key(run_id, version))
 
     def keep_optimizer_states(self, run_id: str, keep: set[int]) -> list[int]:
         """Delete the optimizer state of every checkpoint not in ``keep``; return the versions it was deleted of.

@@ -13,6 +13,7 @@ from rich.console import Console
 
 from common.bus import Bus
 from common.defaults import DEFAULT_TRACK
+from common.protocol import encode_segment
 from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
@@ -48,7 +49,7 @@ def bench_transport(track: str = DEFAULT_TRACK, segment_steps: int = 32, segment
     transport = [a + b for a, b in zip(push, pull, strict=True)]
     return {
         "segment_steps": segment_steps,
-        "segment_bytes": int(seg.arrays["obs"].nbytes + seg.arrays["next_obs"].nbytes + 10 * 4 * segment_steps),
+        "segment_bytes": sum(len(k) + len(v) for k, v in encode_segment(seg).items()),  # one stream entry
         "simulate_ms": statistics.median(sim) * 1e3,
         "push_ms": statistics.median(push) * 1e3,
         "pull_ms": statistics.median(pull) * 1e3,

@@ -44,7 +44,7 @@ from common.bus import Bus
 from common.config import ENV_SEED_STRIDE, MAX_ENVS_PER_WORKER, EnvConfig, RunConfig
 from common.errors import OptionError
 from common.framestack import FrameStack
-from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_from_bytes
+from common.policy import ActorCritic, acting_from_bytes, action_space_spec, build_policy, checkpoint_from_bytes
 from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
 from common.redis_util import redact
 from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
@@ -381,14 +381,19 @@ class RolloutWorker:
 
     def _load(self, pv: PolicyVersion) -> None:
         self._upload_simtrace()  # the iteration acted with the previous version ends here
-        payload, _ = self.store_outage.call(
-            f"load policy v{pv.version}", lambda: self.runs.load_checkpoint(self.opts.run_id, pv.version)
-        )
-        model_sd, _ = checkpoint_from_bytes(payload)
-        self.model.load_state_dict(model_sd)
+        self.model.load_state_dict(self.store_outage.call(f"load policy v{pv.version}", partial(self._weights, pv)))
         self.policy_version = pv.version
         self.policy_loaded_at = time.time()
         log.info("worker %s acting with policy version %d", self.worker_id, pv.version)
+
+    def _weights(self, pv: PolicyVersion) -> dict:
+        """Version ``pv``'s acting copy (float16 weights, half the download), in float32; the checkpoint itself for a
+        version without one (a run from before acting copies, resumed)."""
+        acting = self.runs.load_acting(self.opts.run_id, pv.version)
+        if acting is not None:
+            return acting_from_bytes(acting)
+        payload, _ = self.runs.load_checkpoint(self.opts.run_id, pv.version)
+        return checkpoint_from_bytes(payload)[0]
 
     # --- the loop -----------------------------------------------------------------------------
     def run_forever(self) -> None:

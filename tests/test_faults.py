@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import replace
 from functools import partial
 
 import redis
@@ -21,7 +22,7 @@ import torch
 from common.defaults import STRAIGHT_TRACK
 from common.keys import Keys
 from common.policy import state_dict_from_bytes
-from common.protocol import ProtocolError, decode_segment
+from common.protocol import ProtocolError, decode_segment, encode_segment
 from model_store import RunStore, open_store
 from racer.embedded_redis import EmbeddedRedis, free_port
 from tests.conftest import S3_BUCKET
@@ -36,7 +37,10 @@ from tests.faults import (
     write_run,
 )
 
-PROTOCOL_DROPS = {"no_header", "bad_header", "schema", "missing_array", "bad_dtype", "bad_shape", "bad_length"}
+PROTOCOL_DROPS = {
+    "no_header", "bad_header", "schema", "missing_array", "bad_dtype", "bad_shape", "bad_length", "bad_frames",
+    "corrupt",
+}  # fmt: skip
 
 
 def status(r: redis.Redis, keys: Keys) -> dict:
@@ -273,7 +277,12 @@ def test_a_full_redis_makes_workers_wait_until_the_trainer_frees_it(tmp_path, ca
     try:
         trainer, worker = trainer_and_worker(server.url, str(tmp_path / "store"), tmp_path, "oom")
         worker.run = worker.run.model_copy(update={"stream_maxlen": 1000})  # so that only memory limits the stream
-        segments = [worker.collect() for _ in range(26)]  # ~150 KB each: more than 4 MB holds
+        # More than 4 MB of stream entries: a segment of 8 steps is ~15 kB on the wire, so the 8 collected are sent
+        # again and again, each copy a segment of its own (the trainer tells segments apart by worker and time).
+        collected = [worker.collect() for _ in range(8)]
+        size = max(sum(len(k) + len(v) for k, v in encode_segment(s).items()) for s in collected)
+        copies = -(-(6 << 20) // size)
+        segments = [replace(collected[i % 8], created=collected[i % 8].created + i) for i in range(copies)]
         caplog.set_level(logging.WARNING, "racer.worker")
         pusher = threading.Thread(
             target=lambda: [worker.redis_outage.call("push a segment", partial(worker.push, s)) for s in segments]

@@ -445,19 +445,37 @@ def test_optimizer_states_are_kept_apart_and_only_where_asked(store):
     assert names == sorted(expected)
 
 
+def test_acting_copies_sit_beside_their_checkpoints_and_go_with_them(store):
+    """The acting copy (what workers load) is written before the .json makes the checkpoint whole, is no checkpoint
+    of its own, is None for a checkpoint saved without one (a run from before acting copies), and is pruned with its
+    checkpoint."""
+    runs = RunStore(store)
+    runs.save_checkpoint("run1", 1, b"weights-1", {"env_steps": 1})  # an older trainer's: no acting copy
+    for v in range(2, 5):
+        runs.save_checkpoint("run1", v, f"weights-{v}".encode(), {"env_steps": v}, acting=f"half-{v}".encode())
+    assert [c["version"] for c in runs.list_checkpoints("run1")] == [1, 2, 3, 4]
+    assert runs.load_acting("run1", 1) is None and runs.load_acting("run1", 3) == b"half-3"
+    assert runs.load_checkpoint("run1", 3)[0] == b"weights-3"
+    assert runs.prune_checkpoints("run1", keep_last=2) == [1, 2]
+    assert runs.load_acting("run1", 2) is None and runs.load_acting("run1", 4) == b"half-4"
+    names = sorted(info.key.rsplit("/", 1)[1] for info in store.list("runs/run1/checkpoints/"))
+    assert names == sorted(f"00000000{v}.{ext}" for v in (3, 4) for ext in ("json", "pt", "acting.pt"))
+
+
 def test_prune_run_keeps_the_newest_and_the_pointed_and_counts_what_it_frees(store):
     runs = RunStore(store)
     for v in range(1, 6):
-        runs.save_checkpoint("run1", v, b"w" * 100, {"env_steps": v}, optimizer=b"o" * 200)
+        runs.save_checkpoint("run1", v, b"w" * 100, {"env_steps": v}, optimizer=b"o" * 200, acting=b"a" * 50)
     runs.set_pointer("run1", "best", 2)
     planned = runs.prune_run("run1", keep_last=1, dry_run=True)
     assert planned["checkpoints"] == [1, 3, 4] and planned["optimizer_states"] == [2]
     sizes = {info.key.rsplit("/", 1)[1]: info.size for info in store.list("runs/run1/checkpoints/")}
     metas = sum(sizes[f"00000000{v}.json"] for v in (1, 3, 4))
-    assert planned["bytes"] == 3 * 300 + 200 + metas  # 1, 3 and 4 whole, and 2's optimizer state
+    assert planned["bytes"] == 3 * 350 + 200 + metas  # 1, 3 and 4 whole (acting copies too), 2's optimizer state
     assert [c["version"] for c in runs.list_checkpoints("run1")] == [1, 2, 3, 4, 5]  # a dry run deletes nothing
     assert runs.prune_run("run1", keep_last=1) == planned
     assert [c["version"] for c in runs.list_checkpoints("run1")] == [2, 5]
     assert runs.load_optimizer("run1", 2) is None and runs.load_optimizer("run1", 5) == b"o" * 200
+    assert runs.load_acting("run1", 1) is None and runs.load_acting("run1", 2) == b"a" * 50
     with pytest.raises(StoreKeyError, match="run 'run2' does not exist"):
         runs.prune_run("run2", keep_last=1)

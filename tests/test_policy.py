@@ -20,6 +20,8 @@ from common.policy import (
     ActorCritic,
     CheckpointError,
     PolicyConfig,
+    acting_from_bytes,
+    acting_to_bytes,
     action_space_spec,
     build_policy,
     censored_mean,
@@ -414,3 +416,66 @@ def test_a_front_camera_network_keeps_the_state_dict_of_checkpoints_before_lidar
     assert build_policy(SMALL, DISCRETE, sensors=["FRONT_FACING_CAMERA"]).state_dict().keys() == (
         build_policy(SMALL, DISCRETE).state_dict().keys()
     )
+
+
+# --- the acting copy: what rollout workers download per policy version ----------------------------------------------
+
+
+@functools.cache
+def _driven_frames() -> np.ndarray:
+    """200 real camera frames of the default run, driven by its untrained network (racer/bench_wire.py)."""
+    from racer.bench_wire import driven_segments
+
+    return np.concatenate([s.arrays["obs"] for s in driven_segments(steps=50, segments=4, seed=1)])
+
+
+def _greedy_and_logits(model: ActorCritic, frames: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    model.eval()
+    with torch.no_grad():
+        logits, _ = model(torch.from_numpy(frames))
+    return model.greedy(logits), logits
+
+
+def test_the_acting_copy_takes_the_checkpoints_greedy_actions() -> None:
+    """On 200 real frames, the float16 acting copy (back in float32) picks the same greedy action as the float32
+    weights of the untrained default network (the network of every run's first iteration). A flip would need a
+    top-two logit gap below the copy's logit error (~1e-5 here, logits ~3e-3 in size): a near-tie, where either
+    action is the policy's choice to within float16. Fixed seeds: the same frames and weights every run."""
+    torch.manual_seed(0)
+    model = build_policy((120, 160, 1), DISCRETE)
+    frames = _driven_frames()
+    copy = build_policy((120, 160, 1), DISCRETE)
+    copy.load_state_dict(acting_from_bytes(acting_to_bytes(model.state_dict())))
+    greedy, logits = _greedy_and_logits(model, frames)
+    copy_greedy, copy_logits = _greedy_and_logits(copy, frames)
+    assert len(frames) == 200 and len(set(greedy.tolist())) > 1  # not one action for every frame
+    assert torch.equal(greedy, copy_greedy)
+    assert (logits - copy_logits).abs().max() < 1e-2 * logits.abs().mean()
+
+
+def test_the_acting_copy_is_half_the_checkpoint_and_weights_only(tmp_path: Path) -> None:
+    """Float16 matrices and kernels, everything else as it was (bit for bit), no optimizer; at most 12 MB for the
+    default network; read with weights_only, so a pickle bomb is refused as in checkpoints."""
+    torch.manual_seed(0)
+    model = build_policy((120, 160, 1), CONTINUOUS, PolicyConfig(batch_norm=True))
+    sd = model.state_dict()
+    data = acting_to_bytes(sd)
+    assert len(data) <= 12_000_000 and len(data) < 0.51 * len(checkpoint_to_bytes(sd))
+    raw = torch.load(io.BytesIO(data), weights_only=True)["acting"]
+    for name, tensor in sd.items():
+        half = tensor.is_floating_point() and tensor.dim() >= 2
+        assert raw[name].dtype == (torch.float16 if half else tensor.dtype), name
+    back = acting_from_bytes(data)
+    assert back.keys() == sd.keys() and all(t.dtype == sd[k].dtype for k, t in back.items())
+    for name in ("log_std", "trunk.0.bias", "trunk.1.running_var", "trunk.1.num_batches_tracked"):
+        assert torch.equal(back[name], sd[name]), name
+    big = {"w": torch.full((2, 2), 1e6), "v": torch.ones(2, 2)}  # beyond float16: kept in float32
+    assert acting_from_bytes(acting_to_bytes(big))["w"][0, 0] == 1e6
+    with pytest.raises(CheckpointError, match="acting copy"):
+        acting_from_bytes(checkpoint_to_bytes(sd))
+    target = tmp_path / "pwned"
+    buf = io.BytesIO()
+    torch.save({"acting": {"w": _PickleBomb(target)}}, buf)
+    with pytest.raises(CheckpointError):
+        acting_from_bytes(buf.getvalue())
+    assert not target.exists()

@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 import redis
 
-from common.defaults import DEFAULT_TRACK
+from common.defaults import DEFAULT_TRACK, MAX_SEGMENT_STEPS
+from common.framestack import FrameStack
 from common.keys import Keys, check_run_id
 from common.protocol import (
+    SCHEMA_VERSION,
     EpisodeSummary,
     Heartbeat,
     PolicyVersion,
@@ -74,6 +76,12 @@ def test_through_a_real_redis_stream(redis_url):
     assert np.array_equal(out.arrays["obs"], seg.arrays["obs"])
 
 
+def _flipped(data: bytes) -> bytes:
+    """``data`` with one bit of its middle byte flipped."""
+    middle = len(data) // 2
+    return data[:middle] + bytes([data[middle] ^ 0x10]) + data[middle + 1 :]
+
+
 def corrupt(mutate):
     fields = encode_segment(make_segment())
     header = json.loads(fields["header"])
@@ -92,12 +100,27 @@ def corrupt(mutate):
         (lambda f, h: h.update(policy_version=-1), "bad_header"),
         (lambda f, h: h.update(worker_id=""), "bad_header"),
         (lambda f, h: f.pop("a:rewards"), "missing_array"),
-        (lambda f, h: h["arrays"]["obs"].update(dtype="float64"), "bad_dtype"),
-        (lambda f, h: h["arrays"]["obs"].update(dtype="object"), "bad_dtype"),
-        (lambda f, h: f.update({"a:obs": f["a:obs"][:-1]}), "bad_length"),
+        (lambda f, h: h.update(steps=MAX_SEGMENT_STEPS + 1), "bad_header"),
+        (lambda f, h: h["arrays"]["frame_index"].update(dtype="float64"), "bad_dtype"),
+        (lambda f, h: h["arrays"]["frame_index"].update(dtype="object"), "bad_dtype"),
+        (lambda f, h: f.update({"a:frame_index": f["a:frame_index"][:-1]}), "bad_length"),
         (lambda f, h: h["arrays"]["rewards"].update(shape=[2, 2]), "bad_shape"),
-        (lambda f, h: h["arrays"]["obs"].update(shape=[4, 60, 80, 4]), "bad_shape"),
-        (lambda f, h: h["arrays"]["obs"].update(shape=[-4, 120, 160, 1]), "bad_shape"),
+        (lambda f, h: h["arrays"]["frame_index"].update(shape=[4, 1]), "bad_length"),
+        (lambda f, h: f.pop("a:frames"), "missing_array"),
+        (lambda f, h: h.pop("frames"), "missing_array"),
+        (lambda f, h: h["frames"].update(codec="lz4"), "bad_frames"),
+        (lambda f, h: h["frames"].update(shape=[4, 60, 80]), "bad_shape"),
+        (lambda f, h: h["frames"].update(shape=[-4, 120, 160]), "bad_shape"),
+        (lambda f, h: h["frames"].update(shape=[0, 120, 160]), "bad_shape"),
+        (lambda f, h: h["frames"].update(shape=[5, 120, 160, 1]), "bad_shape"),
+        (lambda f, h: h["frames"].update(shape=[6, 120, 160]), "bad_shape"),  # 5 observations of 1 channel: 5 planes
+        (lambda f, h: h["frames"].update(shape=[4, 120, 160]), "bad_frames"),  # the index names plane 4
+        (lambda f, h: f.update({"a:frame_index": np.full(5, 9, np.uint16).tobytes()}), "bad_frames"),
+        (lambda f, h: f.update({"a:frames": f["a:frames"][:-1]}), "corrupt"),  # truncated
+        (lambda f, h: f.update({"a:frames": f["a:frames"] + b"\0"}), "corrupt"),  # bytes after the frame
+        (lambda f, h: f.update({"a:frames": b"not zstd"}), "corrupt"),
+        (lambda f, h: f.update({"a:frames": b""}), "corrupt"),
+        (lambda f, h: f.update({"a:frames": _flipped(f["a:frames"])}), "corrupt"),  # the checksum catches it
         (lambda f, h: f.update({"a:rewards": np.full(4, np.nan, np.float32).tobytes()}), "non_finite"),
         (lambda f, h: f.update({"a:actions": np.full(4, 10, np.int64).tobytes()}), "bad_action"),
         (lambda f, h: f.update({"a:terminated": np.full(4, 2, np.uint8).tobytes()}), "bad_flag"),
@@ -260,9 +283,102 @@ def test_lidar_arrays_must_match_the_runs_sensors():
     assert exc.value.reason == "bad_shape"
 
 
-def test_a_camera_only_segment_is_unchanged_by_lidar_support():
-    """Same fields, same header arrays as before LiDAR existed: an old worker's segments decode on a new trainer."""
+def test_a_camera_only_segment_has_no_lidar_fields():
+    """The LiDAR pair is the only optional part: a camera-only segment carries the camera frames and the rest."""
     fields = encode_segment(make_segment())
-    names = ["obs", "next_obs", "actions", "rewards", "terminated", "truncated", "logp", "values", "next_values"]
+    names = ["frame_index", "actions", "rewards", "terminated", "truncated", "logp", "values", "next_values"]
     assert sorted(json.loads(fields["header"])["arrays"]) == sorted([*names, "episode_id"])
-    assert json.loads(fields["header"])["schema"] == 1
+    assert sorted(fields) == sorted(["header", "a:frames", *(f"a:{n}" for n in [*names, "episode_id"])])
+    assert json.loads(fields["header"])["schema"] == SCHEMA_VERSION == 2
+
+
+# --- the camera frames on the wire: each frame once, rebuilt bit for bit ----------------------------------------------
+
+
+def stacked_segment(stack: int, frame_channels: int = 1, steps: int = 32, ends=(9, 20), lidar=None, seed=0) -> Segment:
+    """A segment as a worker builds it: frames through a FrameStack, episodes ending after steps ``ends`` (the next
+    episode's first observation repeats its first frame), starting mid-episode; returns it with ``distinct``, the
+    number of distinct frames its observations hold."""
+    rng = np.random.default_rng(seed)
+
+    def frame():
+        return rng.integers(0, 256, (120, 160, frame_channels), dtype=np.uint8)
+
+    frames = FrameStack(stack)
+    obs = [frames.reset(frame())]
+    for _ in range(stack - 1):
+        obs = [frames.push(frame())]  # mid-episode: o_0 holds `stack` distinct frames
+    for t in range(steps):
+        obs.append(frames.reset(frame()) if t in ends else frames.push(frame()))
+    seg = make_segment(steps=steps, seed=seed)
+    seg.arrays["obs"], seg.arrays["next_obs"] = np.stack(obs[:steps]), obs[steps][None]
+    if lidar is not None:
+        for name, rows in (("lidar", steps), ("next_lidar", 1)):
+            seg.arrays[name] = rng.uniform(lidar.low, lidar.high, (rows, lidar.size)).astype(np.float32)
+    seg.distinct = stack + steps  # o_0's frames, then one new frame per observation
+    return seg
+
+
+@pytest.mark.parametrize("stack", [1, 3])
+@pytest.mark.parametrize("sensor", ["FRONT_FACING_CAMERA", "STEREO_CAMERAS", "STEREO_CAMERAS+LIDAR"])
+def test_stacked_frames_travel_once_and_come_back_bit_exact(stack, sensor, redis_url):
+    channels = 2 if sensor.startswith("STEREO") else 1
+    lidar = LIDARS["LIDAR"] if sensor.endswith("LIDAR") else None
+    seg = stacked_segment(stack, channels, lidar=lidar)
+    fields = encode_segment(seg)
+    header = json.loads(fields["header"])
+    # Each camera frame once: o_{t+1} adds one frame to o_t's, and next_obs duplicates none of obs'.
+    assert header["frames"]["shape"] == [seg.distinct * channels, 120, 160]
+    assert header["arrays"]["frame_index"] == {"dtype": "uint16", "shape": [33, stack * channels]}
+    r = redis.Redis.from_url(redis_url)
+    r.xadd(Keys("run-a").segments, fields)
+    [(_, [(_, wire)])] = r.xread({Keys("run-a").segments: "0-0"}, count=1, block=100)
+    out = decode_segment(wire, "run-a", (120, 160, stack * channels), 10, lidar=lidar)
+    assert sorted(out.arrays) == sorted(seg.arrays)
+    for name, arr in seg.arrays.items():
+        assert out.arrays[name].dtype == arr.dtype and np.array_equal(out.arrays[name], arr), name
+        assert out.arrays[name].flags.c_contiguous, name
+
+
+def test_real_camera_frames_fit_the_wire_budget():
+    """A default run's segment (front camera, one frame, 32 steps) of real frames is at most 8 kB a step."""
+    from racer.bench_wire import driven_segments
+
+    [seg] = driven_segments(steps=32, segments=1)
+    fields = encode_segment(seg)
+    size = sum(len(k) + len(v) for k, v in fields.items())
+    assert size / seg.steps <= 8000
+    out = decode_segment(fields, seg.run_id, seg.arrays["obs"].shape[1:], 10)
+    assert np.array_equal(out.arrays["obs"], seg.arrays["obs"])
+    assert np.array_equal(out.arrays["next_obs"], seg.arrays["next_obs"])
+
+
+def test_a_decompression_bomb_is_refused_before_it_inflates():
+    """A few kB of zstd that would inflate to 1 GB, and frames that claim no size, are refused without allocating."""
+    import tracemalloc
+
+    import zstandard
+
+    def with_frames(data: bytes) -> dict:
+        fields = encode_segment(make_segment())
+        fields["a:frames"] = data
+        return fields
+
+    bomb = zstandard.ZstdCompressor(level=19).compress(b"\0" * (1 << 30))
+    unsized = zstandard.ZstdCompressor(write_content_size=False).compress(b"\0" * 5 * 120 * 160)
+    assert len(bomb) < 100_000
+    tracemalloc.start()
+    try:
+        for data in (bomb, unsized):
+            with pytest.raises(ProtocolError) as exc:
+                decode_segment(with_frames(data), "run-a", OBS, 10)
+            assert exc.value.reason == "bad_length"
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 8 << 20
+    # A header claiming more planes than its observations can hold is refused on the shape alone.
+    fields = corrupt(lambda f, h: h["frames"].update(shape=[10**6, 120, 160]))
+    with pytest.raises(ProtocolError) as exc:
+        decode_segment(fields, "run-a", OBS, 10)
+    assert exc.value.reason == "bad_shape"

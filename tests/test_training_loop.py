@@ -9,10 +9,10 @@ import torch
 
 from common.defaults import STRAIGHT_TRACK
 from common.keys import Keys
-from common.policy import bf16_is_fast, checkpoint_from_bytes
+from common.policy import acting_from_bytes, acting_to_bytes, bf16_is_fast, checkpoint_from_bytes
 from common.protocol import PolicyVersion
 from model_store import RunStore, open_store
-from model_store.runs import METRICS_FILE
+from model_store.runs import METRICS_FILE, acting_key
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
 from tests.conftest import S3_BUCKET
@@ -80,7 +80,10 @@ def test_an_iteration_publishes_a_version_the_worker_switches_to(redis_url, run_
     rows = [json.loads(line) for line in runs.read_file(run_id, METRICS_FILE).decode().splitlines()]
     assert rows[0]["iteration"] == 1 and rows[0]["episodes"] >= 2 and 0 <= rows[0]["mean_progress"] <= 100
     assert worker.poll_policy() is True and worker.policy_version == 1
-    for name, tensor in trainer.model.state_dict().items():
+    # The worker acts with the version's acting copy: the trainer's weights rounded to float16, nothing else.
+    acting = acting_from_bytes(acting_to_bytes(trainer.model.state_dict()))
+    assert runs.load_acting(run_id, 1) == acting_to_bytes(trainer.model.state_dict())
+    for name, tensor in acting.items():
         assert torch.equal(tensor, worker.model.state_dict()[name]), name
     assert worker.poll_policy() is False  # nothing newer
     # precision auto: where bf16 is native both were timed before this first update and the faster kept for good.
@@ -138,6 +141,30 @@ def test_resume_restores_version_steps_and_optimizer(redis_url, run_id, tmp_path
     after = again.optimizer.state_dict()["state"]
     assert before.keys() == after.keys() and torch.equal(before[0]["exp_avg"], after[0]["exp_avg"])
     assert len(again.metrics) == 1
+
+
+def test_a_worker_of_a_run_from_before_acting_copies_loads_the_checkpoint(redis_url, run_id, tmp_path, hp_file):
+    """A resumed older run has no acting copy of its newest version: workers load the checkpoint itself (float32),
+    and the next version the resumed trainer writes has its acting copy again."""
+    store = str(tmp_path / "store")
+    trainer, worker = start(run_id, redis_url, store, hp_file)
+    fill(trainer, worker)
+    trainer.train()
+    worker.close()
+    runs = RunStore(open_store(store))
+    for version in (0, 1):  # as an older trainer left them
+        runs.store.delete(acting_key(run_id, version))
+    again = Trainer(trainer.run, TrainerOptions(redis_url, store, resume=True))
+    again.start()
+    late = RolloutWorker(WorkerOptions(run_id, redis_url, store, worker_index=1))
+    late.start()
+    assert late.policy_version == 1
+    for name, tensor in trainer.model.state_dict().items():
+        assert torch.equal(tensor, late.model.state_dict()[name]), name
+    fill(again, late)
+    again.train()
+    assert runs.load_acting(run_id, 2) is not None
+    late.close()
 
 
 def test_only_the_newest_checkpoint_keeps_the_optimizer_state(redis_url, run_id, tmp_path, hp_file):
@@ -235,6 +262,7 @@ def test_tensorboard_scalars_and_checkpoint_pruning(redis_url, run_id, tmp_path,
     trainer.tb.flush()
     runs = RunStore(open_store(store))
     assert [c["version"] for c in runs.list_checkpoints(run_id)] == [2, 3]  # the window of 2; 0 and 1 pruned
+    assert [runs.load_acting(run_id, v) is not None for v in range(4)] == [False, False, True, True]  # with them
     events = EventAccumulator(str(tmp_path / "store" / "runs" / run_id / "tensorboard"))
     events.Reload()
     tags = set(events.Tags()["scalars"])

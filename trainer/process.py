@@ -34,6 +34,7 @@ from common.hyperparams import check_cooldown
 from common.policy import (
     ActorCritic,
     Precision,
+    acting_to_bytes,
     action_space_spec,
     build_policy,
     checkpoint_from_bytes,
@@ -397,6 +398,7 @@ class Trainer:
         """Save the current version (``extra`` goes into its metadata); through a store outage, retry the same
         bytes and metadata until it is whole."""
         payload = checkpoint_to_bytes(self.model.state_dict())
+        acting = acting_to_bytes(self.model.state_dict())  # what workers load (float16 weights, half the bytes)
         optimizer = state_dict_to_bytes(self.optimizer.state_dict())
         meta = {
             "env_steps": self.stats.env_steps,
@@ -409,7 +411,7 @@ class Trainer:
         }
         return self.store_outage.call(
             f"save checkpoint {self.version}",
-            lambda: self.runs.save_checkpoint(self.run.run_id, self.version, payload, meta, optimizer),
+            lambda: self.runs.save_checkpoint(self.run.run_id, self.version, payload, meta, optimizer, acting),
         )
 
     def _prune(self) -> None:
