@@ -441,6 +441,38 @@ def scale(
     write_json(result, json_out)
 
 
+@app.command("wire")
+def wire(
+    segments: Annotated[int, typer.Option(min=1, help="Segments collected per run.")] = 8,
+    steps: Annotated[int, typer.Option(min=1, help="Env steps per segment.")] = 32,
+    repeats: Annotated[int, typer.Option(min=1, help="Timed repeats (medians).")] = 5,
+    json_out: JsonOut = None,
+) -> None:
+    """Bytes per env step a worker sends (schema 1 against today's segments) and per policy version it downloads,
+    with the CPU cost of encoding and decoding a segment."""
+    from racer.bench_wire import bench_wire
+
+    result = bench_wire(segments, steps, repeats)
+    table = Table("run", "bytes/step before", "bytes/step", "ratio", "encode µs/step", "decode µs/step")
+    for name, f in result["segments"].items():
+        table.add_row(
+            name,
+            f"{f['bytes_per_step_before']:,.0f}",
+            f"{f['bytes_per_step']:,.0f}",
+            f"{f['ratio']:.1f}",
+            f"{f['encode_us_per_step']:.0f}",
+            f"{f['decode_us_per_step']:.0f}",
+        )
+    print_table(table)
+    policy = result["policy"]
+    console.print(
+        f"policy version: checkpoint {policy['checkpoint_bytes']:,} bytes, acting copy {policy['acting_bytes']:,} "
+        f"bytes ({policy['ratio']:.2f}x smaller); machine {result['machine']}",
+        highlight=False,
+    )
+    write_json(result, json_out)
+
+
 def _print_figures(figures: dict, json_out: str | None, float_format: str) -> None:
     """A two-column table of ``figures`` (floats in ``float_format``), and the JSON if asked."""
     table = Table("figure", "value")
