@@ -58,6 +58,8 @@ class TrainOptions:
     """Stop once this many consecutive evaluated checkpoints complete every evaluation lap."""
     worker_restarts: int = 3
     """Restarts allowed per worker slot after a crash or kill (not after a user error, exit code 2)."""
+    view: tuple[str, int] | None = None
+    """Serve ``racer view``'s page of the run on this (host, port) from this process (docs/view.md)."""
 
 
 def new_run_id() -> str:
@@ -130,6 +132,11 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
     with contextlib.ExitStack() as stack:
         stack.enter_context(sigterm_as_ctrl_c())
         redis_url = opts.redis_url or stack.enter_context(EmbeddedRedis()).url
+        if opts.view is not None:
+            from racer.view.server import ViewOptions, ViewServer
+
+            view = ViewOptions(run.run_id, opts.store, opts.s3_endpoint, redis_url, *opts.view, run=run)
+            console.print(f"racer view: {stack.enter_context(ViewServer(view)).url}", highlight=False, soft_wrap=True)
         work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="racer-train-")))
         config_path = work / "run.json"
         config_path.write_text(run.model_dump_json())

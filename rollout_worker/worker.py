@@ -33,6 +33,7 @@ from common.simtrace import SimTraceRecorder
 from model_store import RunStore, StoreError, is_transient, open_store
 from model_store.localize import localize_env
 from model_store.runs import simtrace_key
+from rollout_worker.watch import WatchPublisher
 from sim.env import RacerEnv
 
 log = logging.getLogger("racer.worker")
@@ -110,6 +111,7 @@ class RolloutWorker:
         self.model.eval()
         self._load(first)
         self.seed = self.run.seed + 1000 * self.opts.worker_index
+        self.watch = WatchPublisher(self.bus, self.worker_id, self.opts.worker_index, self.env.track.name)
         observation, info = self.env.reset(seed=self.seed)
         self._observe(observation, first=True)
         self.simtrace.reset(info, self._episode)
@@ -183,6 +185,7 @@ class RolloutWorker:
             ro.episode_id.append(self._episode)
             observation, reward, term, trunc, info = self.env.step(action[0])
             self.simtrace.step(action[0], info, reward, term or trunc)
+            self.watch.step(observation, info)  # racer view: nearly free unless a page watches
             self._ep_reward += reward
             ro.rewards.append(reward)
             ro.terminated.append(term)

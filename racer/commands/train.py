@@ -66,6 +66,9 @@ def train(
         str | None,
         typer.Option(help="Start from another run's weights in the store: RUN[:best|latest|N] (DRfC pretrained)."),
     ] = None,
+    view: Annotated[bool, typer.Option("--view", help="Serve racer view's page of the run (docs/view.md).")] = False,
+    view_host: Annotated[str, typer.Option(help="--view's address; beyond loopback it needs a token.")] = "127.0.0.1",
+    view_port: Annotated[int, typer.Option(help="--view's port; 0 = a free one.")] = 8090,
 ) -> None:
     """Train: an embedded Redis (unless --redis), the PPO trainer and N rollout workers on this machine."""
     from common.config import check_precision
@@ -114,6 +117,7 @@ def train(
         stop_when_robust=stop_when_robust,
         eval_tracks=eval_track or [],
         precision=precision,
+        view=(view_host, view_port) if view else None,
     )
     console.print(f"run [bold]{rid}[/]: {workers} workers on {run.env.track}, store {store}")
     status = run_train(run, opts, files, console)
