@@ -5,10 +5,10 @@ against an embedded Redis; ``racer view`` runs as its own process, and "one page
 does what the page does (polls ``/api/live`` five times a second and holds the chosen worker's MJPEG camera stream
 open), so the worker publishes poses and 15 frames/s. Three conditions are timed in interleaved blocks of
 ``seconds`` each, ``repeats`` times: the worker without a publisher at all, with its publisher and nobody watching,
-and with one page watching. Each block times ``RolloutWorker.collect`` (the step loop the publisher is called from),
-wall clock and the process's CPU time per step, and the wall time spent inside the publisher's ``step`` (its share
-of the block: the direct cost, which the noise of a shared machine does not blur); the figures are medians over the
-blocks.
+and with one page watching. Each block times ``RolloutWorker.collect`` (the step loop the publisher is called from):
+wall clock and the process's CPU time per step, which on a shared machine move with everything else running, and
+the publisher's own cost, measured directly: the wall time inside its ``step`` (what the step loop waits), and its
+thread's CPU time as a share of the worker process's. Figures are medians over the blocks.
 """
 
 from __future__ import annotations
@@ -59,14 +59,20 @@ class _NoPublisher:
 
     watched = camera = False
     frames = 0
+    spent = 0.0
+
+    def thread_cpu_s(self) -> float:
+        """No thread."""
+        return 0.0
 
     def step(self, observation: Any, info: dict) -> None:
         """Nothing."""
 
 
 class _Timed:
-    """A ``WatchPublisher`` whose ``step`` calls are timed (wall clock: the Redis round trips are what a worker
-    waits for)."""
+    """A ``WatchPublisher`` whose ``step`` calls are timed by the wall clock. (Not by the thread's CPU clock: reading
+    it is a system call, and on a loaded machine the process was often descheduled right there, which made the
+    calls look milliseconds long.)"""
 
     def __init__(self, publisher: Any) -> None:
         self.publisher, self.spent = publisher, 0.0
@@ -75,6 +81,10 @@ class _Timed:
     def frames(self) -> int:
         """Frames the publisher has sent."""
         return self.publisher.frames
+
+    def thread_cpu_s(self) -> float:
+        """CPU time of the publisher's own thread so far."""
+        return self.publisher.thread_cpu_s()
 
     def step(self, observation: Any, info: dict) -> None:
         """The publisher's step, timed."""
@@ -105,7 +115,7 @@ def _settle(worker: RolloutWorker, publisher: Any, watched: bool) -> None:
 
 def _block(worker: RolloutWorker, seconds: float) -> dict[str, float]:
     """Time ``collect`` for about ``seconds``: wall and CPU ms per step, and frames published a second."""
-    frames0, steps = worker.watch.frames, 0
+    frames0, thread0, steps = worker.watch.frames, worker.watch.thread_cpu_s(), 0
     wall0, cpu0 = time.perf_counter(), time.process_time()
     while time.perf_counter() - wall0 < seconds:
         worker.collect()
@@ -116,8 +126,9 @@ def _block(worker: RolloutWorker, seconds: float) -> dict[str, float]:
         "wall_ms_per_step": 1000 * wall / steps,
         "cpu_ms_per_step": 1000 * cpu / steps,
         "frames_per_s": (worker.watch.frames - frames0) / wall,
-        "publisher_us_per_step": 1e6 * getattr(worker.watch, "spent", 0.0) / steps,
-        "publisher_share": getattr(worker.watch, "spent", 0.0) / wall,
+        "publisher_us_per_step": 1e6 * worker.watch.spent / steps,
+        "publisher_share": worker.watch.spent / wall,
+        "publisher_thread_cpu_share": (worker.watch.thread_cpu_s() - thread0) / cpu,
     }
 
 
@@ -171,6 +182,8 @@ def _summary(blocks: dict[str, list[dict[str, float]]], seconds: float, track: s
         "nobody_vs_no_publisher_cpu": idle["cpu_ms_per_step"] / none["cpu_ms_per_step"],
         "publisher_share_watched": watched["publisher_share"],
         "publisher_share_nobody": idle["publisher_share"],
+        "publisher_thread_cpu_share_watched": watched["publisher_thread_cpu_share"],
+        "publisher_thread_cpu_share_nobody": idle["publisher_thread_cpu_share"],
         "blocks": blocks,
     }
 
@@ -181,8 +194,9 @@ def report_lines(result: dict[str, Any]) -> list[str]:
     for condition, m in result["median"].items():
         lines.append(
             f"{condition:>18}: {m['wall_ms_per_step']:.3f} ms/step wall, {m['cpu_ms_per_step']:.3f} ms/step CPU, "
-            f"{m['frames_per_s']:.1f} frames/s, publisher {m['publisher_us_per_step']:.1f} µs/step "
-            f"({100 * m['publisher_share']:.2f} % of the step time)"
+            f"{m['frames_per_s']:.1f} frames/s; publisher: in the step loop {m['publisher_us_per_step']:.1f} µs/step "
+            f"({100 * m['publisher_share']:.2f} % of the wall time), "
+            f"its thread {100 * m['publisher_thread_cpu_share']:.2f} % of the worker's CPU time"
         )
     lines.append(
         f"one page watching / nobody watching: {result['watched_vs_nobody_wall']:.3f} wall, "

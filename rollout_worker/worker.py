@@ -302,6 +302,8 @@ class RolloutWorker:
         """Upload the last (partial) iteration's sim-trace; release the env, the Redis connections and the temporary
         files."""
         self._upload_simtrace(include_open=True)
+        if hasattr(self, "watch"):
+            self.watch.close()
         if hasattr(self, "env"):
             self.env.close()
         self._workdir.cleanup()

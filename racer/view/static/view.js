@@ -189,7 +189,7 @@ async function pollLive() {
     if (live.live && !live.error) line += ` · ${live.poses.length} cars shown`;
     setStatus(line, Boolean(live.error));
     drawCars();
-    showWorkers(live.poses);
+    showWorkers(live.poses, live.time);
     updateCameraChoices(live);
   } catch (e) {
     setStatus(`cannot reach racer view: ${e.message}`, true);
@@ -197,14 +197,14 @@ async function pollLive() {
   setTimeout(pollLive, LIVE_MS);
 }
 
-function showWorkers(poses) {
+function showWorkers(poses, now) {
   const body = $("workers").tBodies[0];
   body.innerHTML = poses.map((p) =>
     `<tr data-worker="${esc(p.worker_id)}" data-index="${p.index}">` +
     `<td><span class="swatch" style="background:${COLOURS[p.index % COLOURS.length]}"></span>${esc(p.worker_id)}</td>` +
     `<td>${p.index}</td><td>${esc(p.track)}${p.reversed ? " (rev.)" : ""}</td>` +
     `<td class="x" data-value="${p.x}">${p.x.toFixed(2)}</td><td class="y" data-value="${p.y}">${p.y.toFixed(2)}</td>` +
-    `<td>${p.speed.toFixed(2)}</td><td>${p.progress.toFixed(1)}</td><td>${p.steps}</td><td>${esc(p.status)}</td></tr>`
+    `<td>${p.speed.toFixed(2)}</td><td>${p.progress.toFixed(1)}</td><td>${p.steps}</td><td>${esc(p.status)}${now - p.time > 2 ? " (waiting)" : ""}</td></tr>`
   ).join("");
 }
 
