@@ -152,16 +152,31 @@ class Bus:
 
     def watched(self, worker_id: str) -> tuple[bool, bool]:
         """(a page is open, a page shows ``worker_id``'s camera), in one round trip."""
-        page, camera = self.redis.mget(self.keys.watchers, self.keys.camera_watch(worker_id))
+        return self.watched_reply(self.redis.execute_command(*self.watched_query(worker_id)))
+
+    def watched_query(self, worker_id: str) -> tuple:
+        """The command ``watched`` sends, for a caller that reads its reply later (``rollout_worker/watch.py``)."""
+        return ("MGET", self.keys.watchers, self.keys.camera_watch(worker_id))
+
+    @staticmethod
+    def watched_reply(reply: list) -> tuple[bool, bool]:
+        """``watched``'s answer from the reply to ``watched_query``."""
+        page, camera = reply
         return page is not None or camera is not None, camera is not None
 
     def publish_pose(self, pose: CarPose, frame: bytes | None, ttl_s: int = POSE_TTL_S) -> None:
         """Set a worker's latest pose, and its latest camera frame (JPEG) if given, in one round trip."""
         pipe = self.redis.pipeline(transaction=False)
-        pipe.set(self.keys.pose(pose.worker_id), pose.to_json(), ex=ttl_s)
-        if frame is not None:
-            pipe.set(self.keys.frame(pose.worker_id), frame, ex=ttl_s)
+        for command in self.pose_commands(pose, frame, ttl_s):
+            pipe.execute_command(*command)
         pipe.execute()
+
+    def pose_commands(self, pose: CarPose, frame: bytes | None, ttl_s: int = POSE_TTL_S) -> list[tuple]:
+        """The commands ``publish_pose`` sends, for a caller that writes them without waiting for the replies."""
+        commands = [("SET", self.keys.pose(pose.worker_id), pose.to_json(), "EX", ttl_s)]
+        if frame is not None:
+            commands.append(("SET", self.keys.frame(pose.worker_id), frame, "EX", ttl_s))
+        return commands
 
     def poses(self) -> tuple[list[CarPose], int]:
         """The watched workers' latest poses (SCAN, then one MGET), and how many keys held something malformed."""

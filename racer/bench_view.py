@@ -7,8 +7,8 @@ open), so the worker publishes poses and 15 frames/s. Three conditions are timed
 ``seconds`` each, ``repeats`` times: the worker without a publisher at all, with its publisher and nobody watching,
 and with one page watching. Each block times ``RolloutWorker.collect`` (the step loop the publisher is called from):
 wall clock and the process's CPU time per step, which on a shared machine move with everything else running, and
-the publisher's own cost, measured directly: the wall time inside its ``step`` (what the step loop waits), and its
-thread's CPU time as a share of the worker process's. Figures are medians over the blocks.
+the publisher's own cost, measured directly: the wall time inside its ``step`` calls (all it does runs there), as a
+share of the block's. Figures are medians over the blocks.
 """
 
 from __future__ import annotations
@@ -61,18 +61,14 @@ class _NoPublisher:
     frames = 0
     spent = 0.0
 
-    def thread_cpu_s(self) -> float:
-        """No thread."""
-        return 0.0
-
     def step(self, observation: Any, info: dict) -> None:
         """Nothing."""
 
 
 class _Timed:
     """A ``WatchPublisher`` whose ``step`` calls are timed by the wall clock. (Not by the thread's CPU clock: reading
-    it is a system call, and on a loaded machine the process was often descheduled right there, which made the
-    calls look milliseconds long.)"""
+    it is a system call, and on a loaded machine the process was often descheduled right there, which made calls of
+    a few microseconds look milliseconds long.)"""
 
     def __init__(self, publisher: Any) -> None:
         self.publisher, self.spent = publisher, 0.0
@@ -81,10 +77,6 @@ class _Timed:
     def frames(self) -> int:
         """Frames the publisher has sent."""
         return self.publisher.frames
-
-    def thread_cpu_s(self) -> float:
-        """CPU time of the publisher's own thread so far."""
-        return self.publisher.thread_cpu_s()
 
     def step(self, observation: Any, info: dict) -> None:
         """The publisher's step, timed."""
@@ -115,7 +107,7 @@ def _settle(worker: RolloutWorker, publisher: Any, watched: bool) -> None:
 
 def _block(worker: RolloutWorker, seconds: float) -> dict[str, float]:
     """Time ``collect`` for about ``seconds``: wall and CPU ms per step, and frames published a second."""
-    frames0, thread0, steps = worker.watch.frames, worker.watch.thread_cpu_s(), 0
+    frames0, steps = worker.watch.frames, 0
     wall0, cpu0 = time.perf_counter(), time.process_time()
     while time.perf_counter() - wall0 < seconds:
         worker.collect()
@@ -128,7 +120,6 @@ def _block(worker: RolloutWorker, seconds: float) -> dict[str, float]:
         "frames_per_s": (worker.watch.frames - frames0) / wall,
         "publisher_us_per_step": 1e6 * worker.watch.spent / steps,
         "publisher_share": worker.watch.spent / wall,
-        "publisher_thread_cpu_share": (worker.watch.thread_cpu_s() - thread0) / cpu,
     }
 
 
@@ -182,8 +173,6 @@ def _summary(blocks: dict[str, list[dict[str, float]]], seconds: float, track: s
         "nobody_vs_no_publisher_cpu": idle["cpu_ms_per_step"] / none["cpu_ms_per_step"],
         "publisher_share_watched": watched["publisher_share"],
         "publisher_share_nobody": idle["publisher_share"],
-        "publisher_thread_cpu_share_watched": watched["publisher_thread_cpu_share"],
-        "publisher_thread_cpu_share_nobody": idle["publisher_thread_cpu_share"],
         "blocks": blocks,
     }
 
@@ -195,8 +184,7 @@ def report_lines(result: dict[str, Any]) -> list[str]:
         lines.append(
             f"{condition:>18}: {m['wall_ms_per_step']:.3f} ms/step wall, {m['cpu_ms_per_step']:.3f} ms/step CPU, "
             f"{m['frames_per_s']:.1f} frames/s; publisher: in the step loop {m['publisher_us_per_step']:.1f} µs/step "
-            f"({100 * m['publisher_share']:.2f} % of the wall time), "
-            f"its thread {100 * m['publisher_thread_cpu_share']:.2f} % of the worker's CPU time"
+            f"({100 * m['publisher_share']:.2f} % of the wall time)"
         )
     lines.append(
         f"one page watching / nobody watching: {result['watched_vs_nobody_wall']:.3f} wall, "

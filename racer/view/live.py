@@ -45,6 +45,9 @@ class LiveFeed:
         self._cameras: dict[str, float] = {}
         """Worker id → when a page last wanted its camera."""
         self._frames: dict[str, tuple[int, bytes]] = {}
+        self._poses: dict[str, dict[str, Any]] = {}
+        self._alive: set[str] = set()
+        """Workers with a heartbeat (it outlives the pose key while a worker waits out a PPO update)."""
         self._snapshot: dict[str, Any] = {"poses": [], "trainer": None, "workers": [], "error": None, "time": 0.0}
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -135,11 +138,16 @@ class LiveFeed:
             self._snapshot = {**self._snapshot, **values, "time": time.time()}
 
     def _read_poses(self) -> None:
-        poses, _ = self.bus.poses()
-        self._set(poses=[p.model_dump() for p in sorted(poses, key=lambda p: (p.index, p.worker_id))])
+        poses = {p.worker_id: p.model_dump() for p in self.bus.poses()[0]}
+        for worker_id, last in self._poses.items():
+            if worker_id not in poses and worker_id in self._alive:
+                poses[worker_id] = last  # its worker waits for a PPO update: the car stays where it stopped
+        self._poses = poses
+        self._set(poses=sorted(poses.values(), key=lambda p: (p["index"], p["worker_id"])))
 
     def _read_status(self) -> None:
         beats, _ = self.bus.heartbeats()
+        self._alive = {b.worker_id for b in beats}
         workers = [
             {"worker_id": b.worker_id, "policy_version": b.policy_version, "env_steps": b.env_steps, "track": b.track}
             for b in sorted(beats, key=lambda b: b.worker_id)
