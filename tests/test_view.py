@@ -236,6 +236,25 @@ def test_a_worker_nobody_watches_publishes_nothing(redis_url, run_id):
     env.close()
 
 
+def test_a_redis_outage_never_stops_the_worker_s_steps(run_id):
+    server = EmbeddedRedis()
+    bus = Bus(redis.Redis.from_url(server.url), run_id)
+    env = RacerEnv()
+    observation, info = env.reset(seed=2)
+    publisher = WatchPublisher(bus, "w-0", 0, env.track.name)
+    bus.watch(["w-0"])
+    wait_for(lambda: publisher.step(observation, info) or publisher.camera, 5, "the publisher to see the page")
+    publisher.step(observation, info)
+    assert bus.frame("w-0") is not None or wait_for(lambda: bus.frame("w-0"), 2, "a frame")
+    server.stop()
+    end = time.monotonic() + 2.5  # two checks fail: each is one warning at most, never an exception
+    while time.monotonic() < end:
+        publisher.step(observation, info)
+    assert not publisher.watched and not publisher.camera
+    publisher.close()
+    env.close()
+
+
 def test_a_stereo_frame_shows_both_images_side_by_side():
     left, right = np.full((120, 160), 30, np.uint8), np.full((120, 160), 220, np.uint8)
     frame = cv2.imdecode(np.frombuffer(encode_frame(np.dstack([left, right])), np.uint8), cv2.IMREAD_UNCHANGED)
@@ -310,6 +329,13 @@ def test_live_poses_and_camera_from_a_real_worker(stored, redis_url, tmp_path):
         for t in readers:
             t.join(timeout=5)
         assert len(results) == 2 and all(len(r) == 2 and r[0] != r[1] for r in results)
+        # A worker that stops stepping (it waits out a PPO update) keeps its car on the page while it beats.
+        worker.beat()
+        wait_for(lambda: not bus.poses()[0], 6, "the pose key to expire")
+        (pose,) = get_json(f"{url}/api/live")["poses"]
+        assert pose["worker_id"] == "w-1"
+        bus.redis.delete(bus.keys.heartbeat("w-1"))
+        wait_for(lambda: not get_json(f"{url}/api/live")["poses"], 5, "the car to leave once its heartbeat is gone")
     worker.close()
 
 

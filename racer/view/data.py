@@ -10,6 +10,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from common.config import RunConfig
@@ -109,13 +110,13 @@ class RunData:
     def run(self) -> dict[str, Any]:
         """The run as the page introduces it: id, store, track, each worker's track, sensors and action space."""
         env = self.config.env
-        tracks = [self._config_track(t).name for t in self._config_tracks()]
+        tracks = [self._track_name(t) for t in self._config_tracks()]
         return {
             "run_id": self.run_id,
             "store": self.runs.store.key_uri(run_prefix(self.run_id)),
             "track": tracks[0],
             "tracks": sorted(set(tracks)),
-            "worker_tracks": [self._config_track(w.apply(env).track).name for w in self.config.worker_envs],
+            "worker_tracks": [self._track_name(w.apply(env).track) for w in self.config.worker_envs],
             "race_type": env.race.race_type.value,
             "action_space": self._action_space(),
         }
@@ -204,12 +205,23 @@ class RunData:
                 self._tracks[spec] = track
         return track
 
+    def _track_name(self, spec: str) -> str:
+        """The name poses and trials carry for a track of config.json (a path's stem), even one that does not load
+        here (a DeepRacer route not pulled to this machine)."""
+        try:
+            return self._config_track(spec).name
+        except TrackError:
+            return Path(spec).stem if spec.endswith(".npy") else spec
+
     def track(self, name: str) -> dict[str, Any] | None:
         """Geometry of a track the run drives or was evaluated on, by its name; None for any other name (a URL
         must not make the server read an arbitrary file)."""
         for spec in self._config_tracks():
-            if self._config_track(spec).name == name:
-                return track_geometry(self._config_track(spec))
+            if self._track_name(spec) == name:
+                try:
+                    return track_geometry(self._config_track(spec))
+                except TrackError:
+                    return None
         if name in known_track_names():  # an evaluation track given by name (racer train --eval-track)
             try:
                 return track_geometry(self._config_track(name))

@@ -47,7 +47,8 @@ class LiveFeed:
         self._frames: dict[str, tuple[int, bytes]] = {}
         self._poses: dict[str, dict[str, Any]] = {}
         self._alive: set[str] = set()
-        """Workers with a heartbeat (it outlives the pose key while a worker waits out a PPO update)."""
+        """Workers with a heartbeat (it outlives the pose key while a worker waits out a PPO update). A car's id is
+        its worker's id, or ``<worker id>/<env>`` for one of a worker's several envs."""
         self._snapshot: dict[str, Any] = {"poses": [], "trainer": None, "workers": [], "error": None, "time": 0.0}
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -140,7 +141,7 @@ class LiveFeed:
     def _read_poses(self) -> None:
         poses = {p.worker_id: p.model_dump() for p in self.bus.poses()[0]}
         for worker_id, last in self._poses.items():
-            if worker_id not in poses and worker_id in self._alive:
+            if worker_id not in poses and worker_id.split("/")[0] in self._alive:
                 poses[worker_id] = last  # its worker waits for a PPO update: the car stays where it stopped
         self._poses = poses
         self._set(poses=sorted(poses.values(), key=lambda p: (p["index"], p["worker_id"])))
