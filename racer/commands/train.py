@@ -68,7 +68,7 @@ def train(
     ] = None,
     view: Annotated[bool, typer.Option("--view", help="Serve racer view's page of the run (docs/view.md).")] = False,
     view_host: Annotated[str, typer.Option(help="--view's address; beyond loopback it needs a token.")] = "127.0.0.1",
-    view_port: Annotated[int, typer.Option(help="--view's port; 0 = a free one.")] = 8090,
+    view_port: Annotated[int, typer.Option(min=0, max=65535, help="--view's port; 0 = a free one.")] = 8090,
 ) -> None:
     """Train: an embedded Redis (unless --redis), the PPO trainer and N rollout workers on this machine."""
     from common.config import check_precision

@@ -25,7 +25,7 @@ def view(
     host: Annotated[
         str, typer.Option(help="Address to listen on; beyond loopback every request needs the printed token.")
     ] = "127.0.0.1",
-    port: Annotated[int, typer.Option(help="Port to listen on; 0 = a free one.")] = 8090,
+    port: Annotated[int, typer.Option(min=0, max=65535, help="Port to listen on; 0 = a free one.")] = 8090,
 ) -> None:
     """Serve a web page that shows the run: cars on the track, a worker's camera, training charts, checkpoints."""
     from racer.view.server import ViewOptions, ViewServer
