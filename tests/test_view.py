@@ -352,6 +352,21 @@ def test_the_redis_racer_train_recorded_is_used_while_it_answers(stored, redis_u
         assert get_json(f"{base(server)}/api/metrics")
 
 
+def test_racer_view_serves_until_stopped(stored):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).parent.parent), *sys.path])}
+    cmd = [sys.executable, "-m", "racer", "view", "--run-id", RUN_ID, "--store", str(stored), "--port", "0"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    try:
+        lines = [proc.stdout.readline(), proc.stdout.readline()]
+        assert "the run as stored" in lines[0], lines
+        url = re.search(r"racer view: (http://127\.0\.0\.1:\d+/)", lines[1]).group(1)
+        assert get_json(f"{url}api/run")["run_id"] == RUN_ID
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out = proc.communicate(timeout=30)[0]
+    assert proc.returncode == 0, out
+
+
 def test_racer_view_refuses_bad_input_in_one_line(tmp_path):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).parent.parent), *sys.path])}
     for args, expected in (

@@ -173,6 +173,9 @@ class RunData:
 
     def evaluations(self) -> list[dict[str, Any]]:
         """Each evaluation's figures, version order (an unreadable record is left out)."""
+        return self._cached("evaluations", self._read_evaluations)
+
+    def _read_evaluations(self) -> list[dict[str, Any]]:
         out = []
         best = (self.runs.pointer(self.run_id, "best") or {}).get("version")
         for version in self.evaluation_versions():

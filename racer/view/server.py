@@ -150,11 +150,15 @@ class ViewServer:
         return f"http://{host}:{self.port}/" + (f"?token={self.token}" if self.token else "")
 
     def serve_forever(self) -> None:
-        """Serve until Ctrl-C or SIGTERM (uvicorn's own handlers, in the main thread)."""
-        try:
-            self.server.run(sockets=[self.sock])
-        finally:
-            self.close()
+        """Serve until Ctrl-C or SIGTERM, then stop cleanly (exit code 0: uvicorn's own handlers would re-raise the
+        signal once it has stopped)."""
+        from racer.lifecycle import stop_event_on_signals
+
+        stop = stop_event_on_signals()
+        with self:
+            while not stop.wait(0.5):
+                if self._thread is None or not self._thread.is_alive():
+                    raise RuntimeError("racer view's server stopped on its own")
 
     def __enter__(self) -> ViewServer:
         """Serve from a daemon thread until the ``with`` block ends."""
