@@ -13,7 +13,7 @@ from typing import Any
 import redis
 
 from common.keys import Keys
-from common.protocol import EvaluationSummary, Heartbeat, PolicyVersion, ProtocolError
+from common.protocol import CarPose, EvaluationSummary, Heartbeat, PolicyVersion, ProtocolError
 from common.redis_util import connect_checked
 
 EVALUATIONS_KEPT = 1000
@@ -22,6 +22,12 @@ TRAINER_STATUS_TTL_S = 30
 """The trainer's status key expires this long after its last refresh (it refreshes every second)."""
 TRAINING_MARK_TTL_S = 600
 """The "PPO update running" mark expires on its own if the trainer dies mid-update."""
+WATCH_TTL_S = 3
+"""A ``racer view`` page's marks (``watchers``, ``camera_watch``) expire this long after the view's last refresh
+(every second while a page polls), so workers stop publishing within ~4 s of the last page closing."""
+POSE_TTL_S = 3
+"""A watched worker's pose and frame keys expire this long after its last publish (a stopped worker's car leaves
+the page)."""
 
 
 class Bus:
@@ -137,6 +143,61 @@ class Bus:
             except ProtocolError:
                 bad += 1
         return summaries, bad
+
+    # --- racer view: poses and frames, published only while a page watches ------------------------------
+    def watch(self, cameras: list[str], ttl_s: int = WATCH_TTL_S) -> None:
+        """Say a page is open (every worker publishes its pose) and which workers' cameras it shows (those publish
+        frames too), for ``ttl_s``."""
+        pipe = self.redis.pipeline(transaction=False)
+        pipe.set(self.keys.watchers, 1, ex=ttl_s)
+        for worker_id in cameras:
+            pipe.set(self.keys.camera_watch(worker_id), 1, ex=ttl_s)
+        pipe.execute()
+
+    def watched(self, worker_id: str) -> tuple[bool, bool]:
+        """(a page is open, a page shows ``worker_id``'s camera), in one round trip."""
+        return self.watched_reply(self.redis.execute_command(*self.watched_query(worker_id)))
+
+    def watched_query(self, worker_id: str) -> tuple:
+        """The command ``watched`` sends, for a caller that reads its reply later (``rollout_worker/watch.py``)."""
+        return ("MGET", self.keys.watchers, self.keys.camera_watch(worker_id))
+
+    @staticmethod
+    def watched_reply(reply: list) -> tuple[bool, bool]:
+        """``watched``'s answer from the reply to ``watched_query``."""
+        page, camera = reply
+        return page is not None or camera is not None, camera is not None
+
+    def publish_pose(self, pose: CarPose, frame: bytes | None, ttl_s: int = POSE_TTL_S) -> None:
+        """Set a worker's latest pose, and its latest camera frame (JPEG) if given, in one round trip."""
+        pipe = self.redis.pipeline(transaction=False)
+        for command in self.pose_commands(pose, frame, ttl_s):
+            pipe.execute_command(*command)
+        pipe.execute()
+
+    def pose_commands(self, pose: CarPose, frame: bytes | None, ttl_s: int = POSE_TTL_S) -> list[tuple]:
+        """The commands ``publish_pose`` sends, for a caller that writes them without waiting for the replies."""
+        commands = [("SET", self.keys.pose(pose.worker_id), pose.to_json(), "EX", ttl_s)]
+        if frame is not None:
+            commands.append(("SET", self.keys.frame(pose.worker_id), frame, "EX", ttl_s))
+        return commands
+
+    def poses(self) -> tuple[list[CarPose], int]:
+        """The watched workers' latest poses (SCAN, then one MGET), and how many keys held something malformed."""
+        keys = list(self.redis.scan_iter(match=self.keys.pose_pattern, count=100))
+        poses, bad = [], 0
+        for raw in self.redis.mget(keys) if keys else []:
+            if raw is None:
+                continue  # expired between SCAN and MGET
+            try:
+                poses.append(CarPose.from_json(raw))
+            except ProtocolError:
+                bad += 1
+        return poses, bad
+
+    def frame(self, worker_id: str) -> bytes | None:
+        """A watched worker's latest camera frame (JPEG bytes, never decoded here), None if it has none."""
+        return self.redis.get(self.keys.frame(worker_id))
 
     # --- all of it, for racer status -------------------------------------------------------------------
     def snapshot(self) -> dict[str, Any]:

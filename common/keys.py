@@ -64,3 +64,28 @@ class Keys:
         """String key with a TTL, present while the trainer runs a PPO update (value: the version it trains from).
         Workers whose next segment would be too old to use wait instead of burning the CPU the update needs."""
         return f"{self.base}:training"
+
+    # --- racer view: what the workers publish only while a page watches (docs/view.md) ----------------------
+    @property
+    def watchers(self) -> str:
+        """String key with a short TTL, present while a ``racer view`` page is open: only then do workers publish
+        their poses (they read it at most once a second, so a run nobody watches pays nothing else)."""
+        return f"{self.base}:watchers"
+
+    def camera_watch(self, worker_id: str) -> str:
+        """String key with a short TTL, present while a page shows worker ``worker_id``'s camera: only then does it
+        publish frames."""
+        return f"{self.base}:watch_camera:{worker_id}"
+
+    def pose(self, worker_id: str) -> str:
+        """String key with a short TTL: a watched worker's latest pose (CarPose JSON)."""
+        return f"{self.base}:pose:{worker_id}"
+
+    @property
+    def pose_pattern(self) -> str:
+        """SCAN pattern matching every worker's pose key."""
+        return f"{self.base}:pose:*"
+
+    def frame(self, worker_id: str) -> str:
+        """String key with a short TTL: a watched worker's latest camera frame, JPEG bytes."""
+        return f"{self.base}:frame:{worker_id}"

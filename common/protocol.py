@@ -514,3 +514,31 @@ class EvaluationSummary(_Message):
     score: float
     best: bool
     """The evaluation moved the run's ``best`` pointer."""
+
+
+class CarPose(_Message):
+    """Where a watched worker's car is now, for ``racer view`` (published only while a page watches,
+    ``rollout_worker/watch.py``). Position and heading as the reward function sees them (``params``)."""
+
+    _reason: ClassVar[str] = "bad_pose"
+    worker_id: str = Field(max_length=256)
+    index: int = Field(ge=0)
+    """The worker's index k (the page colours cars by it)."""
+    track: str = Field(max_length=256)
+    x: float
+    y: float
+    heading: float
+    """Degrees, counter-clockwise from +x (``params["heading"]``)."""
+    speed: float
+    steering: float
+    """Degrees (``params["steering_angle"]``)."""
+    progress: float
+    steps: int = Field(ge=0)
+    reversed: bool
+    status: str = Field(max_length=64)
+    time: float
+    """Wall-clock time of the step, epoch seconds."""
+    frames: int = Field(ge=0)
+    """Camera frames published so far (0: none yet; the page shows a camera once there is one)."""
+    lidar: list[float] | None = Field(default=None, max_length=1024)
+    """The LiDAR observation of the step (``common/sensors.py: LIDARS``), None without a LiDAR."""

@@ -16,7 +16,7 @@ from rich.console import Console
 from typer.core import TyperGroup
 
 from common.errors import UserError, one_line
-from racer.commands import bench, car_model, deploy, evaluate, models, roles, tracks, train
+from racer.commands import bench, car_model, deploy, evaluate, models, roles, tracks, train, view
 from racer.lifecycle import USER_ERROR_EXIT
 
 
@@ -86,6 +86,7 @@ app.command("car")(deploy.car)
 app.command("calibrate")(car_model.calibrate)
 app.command("limit")(car_model.limit)
 app.command("drive")(tracks.drive)
+app.command("view")(view.view)
 app.add_typer(models.app, name="models")
 app.add_typer(tracks.app, name="tracks")
 app.add_typer(bench.app, name="bench")

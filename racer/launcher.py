@@ -64,6 +64,8 @@ class TrainOptions:
     """Restarts allowed per worker slot after a crash or kill (not after a user error, exit code 2)."""
     envs_per_worker: int = 1
     """Envs each worker steps side by side (``racer worker --envs-per-worker``)."""
+    view: tuple[str, int] | None = None
+    """Serve ``racer view``'s page of the run on this (host, port) from this process (docs/view.md)."""
 
 
 def new_run_id() -> str:
@@ -150,6 +152,11 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
         # Registered after the Redis, so removed before it stops: `racer status` never finds a dead one recorded.
         stack.callback(remove_redis_record, write_redis_record(opts.store, run.run_id, redis_url))
         console.print(f"Redis: {redact(redis_url)} ({_status_hint(run.run_id, opts.store)})", highlight=False)
+        if opts.view is not None:
+            from racer.view.server import ViewOptions, ViewServer
+
+            view = ViewOptions(run.run_id, opts.store, opts.s3_endpoint, redis_url, *opts.view, run=run)
+            console.print(f"racer view: {stack.enter_context(ViewServer(view)).url}", highlight=False, soft_wrap=True)
         work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="racer-train-")))
         config_path = work / "run.json"
         config_path.write_text(run.model_dump_json())

@@ -54,6 +54,7 @@ from model_store import RunStore, StoreError, is_transient, open_store
 from model_store.localize import localize_env
 from model_store.runs import simtrace_key
 from rollout_worker.onnx_policy import Actor, acting_copy
+from rollout_worker.watch import WatchPublisher
 from sim.env import RacerEnv
 
 log = logging.getLogger("racer.worker")
@@ -123,6 +124,8 @@ class _Env:
     """The stacked camera observation the next action is chosen from."""
     lidar: np.ndarray | None = None
     """Its LiDAR vector (None without a LiDAR sensor)."""
+    watch: WatchPublisher | None = None
+    """What ``racer view`` shows of this env (its pose and camera), published only while a page watches."""
 
     def observe(self, observation: np.ndarray | dict, first: bool = False) -> None:
         """Take an env observation apart: its camera frame onto the stack (``obs``), its LiDAR vector (not stacked,
@@ -210,6 +213,8 @@ class Rollouts:
                 observation, reward, term, trunc, info = e.env.step(action)
                 clock["env"] += time.perf_counter() - t0
                 e.simtrace.step(action, info, reward, term or trunc)
+                if e.watch is not None:
+                    e.watch.step(observation, info)
                 e.ep_reward += reward
                 ro.rewards.append(reward)
                 ro.terminated.append(term)
@@ -360,6 +365,8 @@ class RolloutWorker:
         log.info("worker %s: %d env(s) on %s, seeds %s", self.worker_id, n, self.rollouts.track_name, seeds)
         self.model: ActorCritic = self.rollouts.build_policy()
         self._load(first)
+        for e in self.rollouts.envs:  # racer view: nearly free unless a page watches (rollout_worker/watch.py)
+            e.watch = WatchPublisher(self.bus, e.segment_worker_id, self.opts.worker_index, self.rollouts.track_name)
         self.rollouts.reset()
 
     def _env_config(self) -> EnvConfig:
@@ -476,6 +483,9 @@ class RolloutWorker:
         """Upload the last (partial) iteration's sim-trace; release the envs and the temporary files."""
         self._upload_simtrace(include_open=True)
         if self.rollouts is not None:
+            for e in self.rollouts.envs:
+                if e.watch is not None:
+                    e.watch.close()
             self.rollouts.close()
         self._workdir.cleanup()
 

@@ -87,6 +87,9 @@ def train(
         str | None,
         typer.Option(help="Start from another run's weights in the store: RUN[:best|latest|N] (DRfC pretrained)."),
     ] = None,
+    view: Annotated[bool, typer.Option("--view", help="Serve racer view's page of the run (docs/view.md).")] = False,
+    view_host: Annotated[str, typer.Option(help="--view's address; beyond loopback it needs a token.")] = "127.0.0.1",
+    view_port: Annotated[int, typer.Option(min=0, max=65535, help="--view's port; 0 = a free one.")] = 8090,
 ) -> None:
     """Train: an embedded Redis (unless --redis), the PPO trainer and N rollout workers on this machine."""
     from model_store import RunStore, open_store
@@ -136,6 +139,7 @@ def train(
         precision=precision,
         device=device,
         envs_per_worker=envs_per_worker,
+        view=(view_host, view_port) if view else None,
     )
     envs = f" × {envs_per_worker} envs" if envs_per_worker > 1 else ""
     console.print(f"run [bold]{rid}[/]: {workers} workers{envs} on {run.env.track}, store {store}")
