@@ -473,6 +473,22 @@ def wire(
     write_json(result, json_out)
 
 
+@app.command("view")
+def view(
+    seconds: Annotated[float, typer.Option(min=0.5, help="Length of each timed block, s.")] = 5.0,
+    repeats: Annotated[int, typer.Option(min=1, help="Blocks of each condition, interleaved.")] = 8,
+    track: Track = DEFAULT_TRACK,
+    json_out: JsonOut = None,
+) -> None:
+    """A rollout worker's step time with no racer view publisher, nobody watching and one page watching."""
+    from racer.bench_view import bench_view, report_lines
+
+    result = bench_view(seconds, repeats, track)
+    for line in report_lines(result):
+        console.print(line, highlight=False)
+    write_json(result, json_out)
+
+
 def _print_figures(figures: dict, json_out: str | None, float_format: str) -> None:
     """A two-column table of ``figures`` (floats in ``float_format``), and the JSON if asked."""
     table = Table("figure", "value")
