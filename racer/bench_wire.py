@@ -1,9 +1,9 @@
 """The wire budget: bytes per env step a worker sends upstream (segments) and bytes per policy version it downloads,
 with the CPU cost of encoding and decoding a segment.
 
-Segments here are collected as a rollout worker collects them at version 0: a ``RacerEnv`` of the default run
+Segments here are collected by the rollout worker's own loop at version 0: a ``RacerEnv`` of the default run
 (default track, DeepRacer's default action space and reward function) with the chosen sensors and stack size,
-driven by the untrained default network, its frames through a ``FrameStack``, episodes reset as they end. The
+driven by the untrained default network, episodes reset as they end. The
 figures compare schema 1 (every array raw, ``schema1_bytes``) with today's ``encode_segment``; ``codecs`` compares
 compressions of the same distinct frames. Times are CPU time of this process (``time.process_time``: a shared
 machine's other work does not count), per env step, medians over repeats. ``bench_wire()`` returns a JSON-ready
@@ -23,20 +23,18 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import torch
 
-from common.config import EnvConfig, PolicyConfig, RandomizationConfig
-from common.framestack import FrameStack
+from common.config import EnvConfig, PolicyConfig, RandomizationConfig, RunConfig
+from common.hyperparams import Hyperparameters
 from common.policy import (
-    ActorCritic,
     acting_from_bytes,
     acting_to_bytes,
-    action_space_spec,
     build_policy,
     checkpoint_from_bytes,
     checkpoint_to_bytes,
 )
-from common.protocol import EpisodeSummary, Segment, decode_segment, encode_segment, frame_table
-from common.sensors import LidarSpec, camera_frame_size, observation_spec, split_observation
-from sim.env import RacerEnv
+from common.protocol import Segment, decode_segment, encode_segment, frame_table
+from common.sensors import LidarSpec, observation_spec
+from rollout_worker.worker import Rollouts
 
 _IMAGE_RANDOMIZED = {"texture": 1.0, "lighting": 1.0, "track_color": 1.0}
 CASES: dict[str, tuple[tuple[str, ...] | None, int, dict]] = {
@@ -61,83 +59,30 @@ def driven_segments(
     seed: int = 0,
     randomization: dict | None = None,
 ) -> list[Segment]:
-    """``segments`` consecutive segments of ``steps`` env steps, as a version-0 worker of the default run with
-    ``sensors``, ``stack_size`` and ``randomization`` (RandomizationConfig fields) collects them (the scalar arrays
-    filled the worker's way, next values included)."""
+    """``segments`` consecutive segments of ``steps`` env steps, collected by the rollout worker's own loop
+    (``rollout_worker.worker.Rollouts``, one env) at version 0 of the default run with ``sensors``, ``stack_size``
+    and ``randomization`` (RandomizationConfig fields), driven by the untrained network."""
     from sim.bench import write_sensor_space
 
     dr = RandomizationConfig.model_validate(randomization or {})
     with tempfile.TemporaryDirectory(prefix="racer-bench-wire-") as folder:
         space = str(write_sensor_space(folder, sensors)) if sensors else None
-        env = RacerEnv(config=EnvConfig(action_space=space, randomization=dr))
-    spec = observation_spec(env.actions.sensor, stack_size)
+        env = EnvConfig(action_space=space, randomization=dr)
+        run = RunConfig(
+            run_id="bench-wire",
+            env=env,
+            hyperparams=Hyperparameters(stack_size=stack_size),
+            policy=PolicyConfig(stack_size=stack_size),
+            segment_steps=steps,
+            seed=seed,
+        )
+        rollouts = Rollouts(run, env, [seed], ["bench-0"])  # builds the env while its action space file exists
     torch.manual_seed(seed)
-    shape = spec.camera_shape(camera_frame_size(env.observation_space))
-    cfg = PolicyConfig(stack_size=stack_size)
-    model = build_policy(shape, action_space_spec(env.actions), cfg, env.actions.sensor)
-    model.eval()
-    stack = FrameStack(stack_size)
-    camera, lidar = split_observation(env.reset(seed=seed)[0])
-    obs, episode = stack.reset(camera), 0
-    out = []
-    for _ in range(segments):
-        rows: dict[str, list] = {k: [] for k in ("obs", "lidar", "actions", "logp", "values", "rewards", "term")}
-        rows.update(trunc=[], episode_id=[], next_values=[])
-        episodes = []
-        for _ in range(steps):
-            action, logp, value = _act(model, obs, lidar)
-            for name, v in (("obs", obs), ("lidar", lidar), ("actions", action), ("logp", logp), ("values", value)):
-                rows[name].append(v)
-            rows["episode_id"].append(episode)
-            observation, reward, term, trunc, info = env.step(action)
-            rows["rewards"].append(reward)
-            rows["term"].append(term)
-            rows["trunc"].append(trunc)
-            camera, lidar = split_observation(observation)
-            if term or trunc:
-                rows["next_values"].append(_act(model, stack.push(camera), lidar)[2] if trunc else 0.0)
-                p = info["params"]
-                episodes.append(EpisodeSummary(episode, info["steps"], p["progress"], 0.0, info["episode_status"]))
-                episode += 1
-                camera, lidar = split_observation(env.reset()[0])
-                obs = stack.reset(camera)
-            else:
-                obs = stack.push(camera)
-                rows["next_values"].append(None)
-        out.append(_segment(rows, obs, lidar, model, env.actions.discrete, episodes))
-    env.close()
+    model = rollouts.build_policy()
+    rollouts.reset()
+    out = [seg for _ in range(segments) for seg in rollouts.collect(model, 0)]
+    rollouts.close()
     return out
-
-
-def _act(model: ActorCritic, obs: np.ndarray, lidar: np.ndarray | None) -> tuple:
-    action, logp, value = model.act_numpy(obs[None], lidar=None if lidar is None else lidar[None])
-    return action[0], float(logp[0]), float(value[0])
-
-
-def _segment(rows: dict, obs: np.ndarray, lidar, model: ActorCritic, discrete: bool, episodes: list) -> Segment:
-    values = rows["values"]
-    nxt = [
-        v if v is not None else (values[t + 1] if t + 1 < len(values) else None)
-        for t, v in enumerate(rows["next_values"])
-    ]
-    if nxt[-1] is None:
-        nxt[-1] = _act(model, obs, lidar)[2]
-    arrays = {
-        "obs": np.stack(rows["obs"]),
-        "next_obs": obs[None],
-        "actions": np.asarray(rows["actions"]).astype(np.int64 if discrete else np.float32),
-        "rewards": np.asarray(rows["rewards"], np.float32),
-        "terminated": np.asarray(rows["term"], np.uint8),
-        "truncated": np.asarray(rows["trunc"], np.uint8),
-        "logp": np.asarray(rows["logp"], np.float32),
-        "values": np.asarray(values, np.float32),
-        "next_values": np.asarray(nxt, np.float32),
-        "episode_id": np.asarray(rows["episode_id"], np.int64),
-    }
-    if lidar is not None:
-        arrays["lidar"] = np.stack(rows["lidar"])
-        arrays["next_lidar"] = lidar[None]
-    return Segment("bench-wire", "bench-0", 0, 0, arrays, episodes)
 
 
 def schema1_bytes(seg: Segment) -> int:
