@@ -14,6 +14,7 @@ from torch import nn
 
 from common.config import PolicyConfig
 from common.policy import build_policy
+from racer.bench_update import GEMM_OPS
 from trainer.peak import Gemm, LayerCost, layer_costs, peak_precisions, step_flops, update_flops
 
 DISCRETE = {"kind": "discrete", "n": 10}
@@ -94,4 +95,6 @@ def test_bench_update_reports_its_share_of_the_gemm_peak(tmp_path: Path) -> None
     parts = result["breakdown"]
     assert parts["precision"] == result["auto"] and parts["gemm_ms"] > 0 and parts["gemm_fraction_of_peak"] > 0
     assert parts["other_ms"] == pytest.approx(parts["step_ms"] - parts["gemm_ms"])
-    assert "aten::convolution_backward" in {op["op"] for op in parts["ops"]}
+    assert "aten::convolution_backward" in {op["op"] for op in parts["gemm_ops"]}
+    assert parts["gemm_ms"] == pytest.approx(sum(op["ms"] for op in parts["gemm_ops"]))
+    assert parts["other_ops"] and not {op["op"] for op in parts["other_ops"]} & GEMM_OPS
