@@ -279,13 +279,13 @@ def test_a_full_redis_makes_workers_wait_until_the_trainer_frees_it(tmp_path, ca
         worker.run = worker.run.model_copy(update={"stream_maxlen": 1000})  # so that only memory limits the stream
         # More than 4 MB of stream entries: a segment of 8 steps is ~15 kB on the wire, so the 8 collected are sent
         # again and again, each copy a segment of its own (the trainer tells segments apart by worker and time).
-        collected = [worker.collect() for _ in range(8)]
+        collected = [seg for _ in range(8) for seg in worker.collect()]  # one env: one segment per collect
         size = max(sum(len(k) + len(v) for k, v in encode_segment(s).items()) for s in collected)
         copies = -(-(6 << 20) // size)
         segments = [replace(collected[i % 8], created=collected[i % 8].created + i) for i in range(copies)]
         caplog.set_level(logging.WARNING, "racer.worker")
         pusher = threading.Thread(
-            target=lambda: [worker.redis_outage.call("push a segment", partial(worker.push, s)) for s in segments]
+            target=lambda: [worker.redis_outage.call("push a segment", partial(worker.push, [s])) for s in segments]
         )
         pusher.start()
         wait_for(lambda: "maxmemory" in caplog.text, 60, "Redis to refuse a segment for lack of memory")
