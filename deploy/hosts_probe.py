@@ -93,8 +93,9 @@ def sample(args: argparse.Namespace) -> int:
 def wait_upload(args: argparse.Namespace) -> int:
     """Wait until ``--iface`` receives ``--bytes`` within ``--within`` seconds, then run ``--then`` at once (and note
     ``--event`` with its time in ``--events``). On a worker's link, seen from the server side, such a burst is a
-    segment on its way (the largest thing a worker sends; 600 KB take 0.25 s at 20 Mbit/s): a cut run from here
-    leaves that push half sent, the worst moment for losing or doubling a segment."""
+    segment on its way (the largest thing a worker sends: about 50 KB for 32 steps of the default run, 20 ms at
+    20 Mbit/s; heartbeats and the other calls are a few hundred bytes): a cut run from here leaves that push half
+    sent, the worst moment for losing or doubling a segment."""
     counter = Path("/sys/class/net") / args.iface / "statistics" / "rx_bytes"
     deadline = time.monotonic() + args.timeout
     recent: list[tuple[float, int]] = []
@@ -389,7 +390,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--timeout", type=float, default=60.0)
     p = sub.add_parser("wait-upload", help="wait for a burst received on an interface (a segment), then run --then")
     p.add_argument("--iface", required=True)
-    p.add_argument("--bytes", type=int, default=100_000)
+    p.add_argument("--bytes", type=int, default=20_000)
     p.add_argument("--within", type=float, default=0.06)
     p.add_argument("--timeout", type=float, default=60.0)
     p.add_argument("--events", default="", help="file to note the event in")
