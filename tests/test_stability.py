@@ -19,7 +19,7 @@ from common.bus import Bus
 from common.defaults import STRAIGHT_TRACK
 from common.errors import OptionError
 from common.keys import Keys
-from common.policy import checkpoint_from_bytes, state_dict_from_bytes
+from common.policy import acting_from_bytes, acting_to_bytes, checkpoint_from_bytes, state_dict_from_bytes
 from common.protocol import PolicyVersion
 from model_store import RunStore, open_store
 from model_store.runs import METRICS_FILE
@@ -241,7 +241,8 @@ def test_a_collapse_rolls_back_to_the_best_weights_and_optimizer_at_a_lower_lr(
     worker.push(worker.collect())
     assert trainer.read(block_ms=500) == 0 and trainer.stats.dropped.get("rolled_back") == 1
     assert worker.poll_policy() and worker.policy_version == 4
-    assert _same(worker.model.state_dict(), best_model)
+    # The worker acts with v4's acting copy: v1's weights through float16 (common/policy.py: acting_to_bytes).
+    assert _same(worker.model.state_dict(), acting_from_bytes(acting_to_bytes(best_model)))
 
     # Numbering goes on upward, and the metrics count the rollback.
     fill(trainer, worker)
