@@ -20,7 +20,7 @@ from deepracer.logs import DeepRacerLog
 from common.defaults import STRAIGHT_TRACK
 from common.errors import OptionError
 from common.keys import Keys
-from common.policy import build_policy, checkpoint_from_bytes
+from common.policy import acting_from_bytes, build_policy
 from common.protocol import decode_segment, encode_segment
 from common.sensors import observation_spec
 from model_store import RunStore, open_store
@@ -56,11 +56,11 @@ def setup(redis_url, run_id, tmp_path):
 
 
 def _network(trainer: Trainer, store: str, version: int) -> torch.nn.Module:
-    """The trainer's network with the weights of checkpoint ``version``, in fp32 as workers act (the trainer's own
-    may train in bf16)."""
-    payload, _ = RunStore(open_store(store)).load_checkpoint(trainer.run.run_id, version)
+    """The trainer's network with the weights workers act with at ``version`` (its acting copy, common/policy.py:
+    acting_to_bytes), in fp32 as workers act (the trainer's own may train in bf16)."""
+    acting = RunStore(open_store(store)).load_acting(trainer.run.run_id, version)
     model = copy.deepcopy(trainer.model)
-    model.load_state_dict(checkpoint_from_bytes(payload)[0])
+    model.load_state_dict(acting_from_bytes(acting))
     model.set_trunk_precision("fp32")
     return model.eval()
 
