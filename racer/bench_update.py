@@ -65,7 +65,9 @@ def bench_update(
     """Milliseconds per minibatch step, the median over ``repeats`` runs of ``steps`` steps, per setting; the GFLOP/s
     that makes, the GEMM peak per precision (median over the same runs, interleaved with them) and the fraction of
     that peak each setting gets (None for bf16 where it is emulated: no peak to measure). ``with_breakdown`` adds
-    ``breakdown``: :func:`breakdown` of the ``auto`` setting, with its GEMM operators' share of the peak."""
+    ``breakdown``: :func:`breakdown` of the ``auto`` setting, with its GEMM operators' share of the peak and the
+    fraction of peak the step would get if they ran at the peak and the rest took as long as it does
+    (``fraction_if_gemms_at_peak``: the most that faster GEMMs alone could give)."""
     torch.set_num_threads(threads)
     cases = {f"{p}{'-fused' if f else ''}": _setup(p, f, 0) for p, f in SETTINGS}
     minibatch = _minibatch(batch, 0)
@@ -106,8 +108,21 @@ def bench_update(
     }
     if with_breakdown:
         parts = breakdown(auto, threads, batch, steps)
-        result["breakdown"] = {**parts, "gemm_fraction_of_peak": _fraction(parts["gemm_gflops"], peak[auto])}
+        result["breakdown"] = {
+            **parts,
+            "gemm_fraction_of_peak": _fraction(parts["gemm_gflops"], peak[auto]),
+            "fraction_if_gemms_at_peak": _ceiling(gflop, peak[auto], parts["other_ms"]),
+        }
     return result
+
+
+def _ceiling(gflop: float, peak: float | None, other_ms: float) -> float | None:
+    """The fraction of ``peak`` a step of ``gflop`` gets if its GEMMs take ``gflop / peak`` and the rest
+    ``other_ms``; None where there is no peak."""
+    if peak is None:
+        return None
+    gemm_ms = gflop / peak * 1e3
+    return gemm_ms / (gemm_ms + max(other_ms, 0.0))
 
 
 def _fraction(gflops: float, peak: float | None) -> float | None:

@@ -14,7 +14,7 @@ from torch import nn
 
 from common.config import PolicyConfig
 from common.policy import build_policy
-from racer.bench_update import GEMM_OPS
+from racer.bench_update import GEMM_OPS, _ceiling
 from trainer.peak import Gemm, LayerCost, layer_costs, peak_precisions, step_flops, update_flops
 
 DISCRETE = {"kind": "discrete", "n": 10}
@@ -77,6 +77,12 @@ def test_the_gemm_peak_times_a_square_product(precision: str) -> None:
     torch.testing.assert_close(gemm.c.float(), gemm.a.float() @ gemm.b.float(), rtol=0.02, atol=0.5)
 
 
+def test_the_ceiling_is_the_share_a_step_gets_with_its_gemms_at_the_peak() -> None:
+    # 8 GFLOP at 400 GFLOP/s is 20 ms of GEMMs; with 20 ms of the rest the step gets half the peak.
+    assert _ceiling(8.0, 400.0, 20.0) == pytest.approx(0.5)
+    assert _ceiling(8.0, 400.0, 0.0) == 1.0 and _ceiling(8.0, None, 20.0) is None
+
+
 def test_bench_update_reports_its_share_of_the_gemm_peak(tmp_path: Path) -> None:
     # A subprocess: the benchmark sets torch's thread count, which must not change the test runner's.
     out = tmp_path / "update.json"
@@ -98,3 +104,4 @@ def test_bench_update_reports_its_share_of_the_gemm_peak(tmp_path: Path) -> None
     assert "aten::convolution_backward" in {op["op"] for op in parts["gemm_ops"]}
     assert parts["gemm_ms"] == pytest.approx(sum(op["ms"] for op in parts["gemm_ops"]))
     assert parts["other_ops"] and not {op["op"] for op in parts["other_ops"]} & GEMM_OPS
+    assert 0 < parts["fraction_if_gemms_at_peak"] <= 1.0

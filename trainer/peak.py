@@ -30,7 +30,7 @@ from common.policy import ActorCritic, Precision, bf16_is_fast
 
 GEMM_SIZE = 1024
 """Side of the square matrices: 2.1 GFLOP a product, compute-bound (on the 2-core AMD EPYC 1024 and 2048 gave the
-same GFLOP/s within 5 %, 512 a tenth less), and a few milliseconds a call so that it interleaves with the update."""
+same GFLOP/s within 5 %, 512 about 12 % less), and a few milliseconds a call so that it interleaves with the update."""
 
 
 def peak_precisions() -> tuple[Precision, ...]:

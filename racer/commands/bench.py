@@ -343,7 +343,8 @@ def update(
         console.print(
             f"{parts['precision']} step {parts['step_ms']:.1f} ms: GEMM operators {parts['gemm_ms']:.1f} ms "
             f"at {parts['gemm_fraction_of_peak']:.2f} of the GEMM peak, the rest {parts['other_ms']:.1f} ms "
-            "(the profiler slows large copies: the other operators' figures are for their order only)",
+            "(the profiler slows large copies: the other operators' figures are for their order only); with every "
+            f"GEMM at the peak the step would get {parts['fraction_if_gemms_at_peak']:.2f} of it",
             highlight=False,
         )
     write_json(result, json_out)
