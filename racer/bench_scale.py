@@ -21,7 +21,6 @@ import gc
 import json
 import multiprocessing
 import os
-import platform
 import random
 import socket
 import statistics
@@ -29,7 +28,6 @@ import tempfile
 import threading
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import redis
@@ -46,6 +44,7 @@ from model_store import LocalStore, RunStore
 from racer.embedded_redis import EmbeddedRedis
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
+from trainer.peak import cpu_model
 from trainer.ppo import minibatch_step
 from trainer.process import Trainer, TrainerOptions, make_batch, make_optimizer
 
@@ -577,17 +576,6 @@ def stops_growing_at(levels: list[dict]) -> int | None:
 def trainer_bound_from(levels: list[dict]) -> int | None:
     """The fewest workers at which the trainer spent ``BUSY`` of the window or more in updates (None: at none)."""
     return min((lv["workers"] for lv in levels if lv["trainer_busy_fraction"] >= BUSY), default=None)
-
-
-def cpu_model() -> str:
-    """The CPU's model name (Linux's /proc/cpuinfo), else what ``platform`` says."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.lower().startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def scale_table(result: dict[str, Any]) -> Table:

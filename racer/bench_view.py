@@ -13,7 +13,6 @@ share of the block's. Figures are medians over the blocks.
 
 from __future__ import annotations
 
-import os
 import re
 import statistics
 import subprocess
@@ -29,6 +28,7 @@ from common.defaults import DEFAULT_TRACK
 from racer.embedded_redis import EmbeddedRedis
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
+from trainer.peak import cpu_model
 from trainer.process import Trainer, TrainerOptions
 
 RUN_ID = "bench-view"
@@ -165,7 +165,7 @@ def _summary(blocks: dict[str, list[dict[str, float]]], seconds: float, track: s
         "track": track,
         "seconds_per_block": seconds,
         "repeats": len(blocks[CONDITIONS[0]]),
-        "machine": _cpu_model(),
+        "machine": cpu_model(),
         "median": median,
         "watched_vs_nobody_wall": watched["wall_ms_per_step"] / idle["wall_ms_per_step"],
         "watched_vs_nobody_cpu": watched["cpu_ms_per_step"] / idle["cpu_ms_per_step"],
@@ -195,12 +195,3 @@ def report_lines(result: dict[str, Any]) -> list[str]:
         f"{result['nobody_vs_no_publisher_cpu']:.3f} CPU"
     )
     return lines
-
-
-def _cpu_model() -> str:
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return os.uname().machine
-    m = re.search(r"^model name\s*:\s*(.+)$", text, re.MULTILINE)
-    return m.group(1).strip() if m else os.uname().machine

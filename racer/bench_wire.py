@@ -13,7 +13,6 @@ dict; ``python -m racer.bench_wire`` prints it.
 from __future__ import annotations
 
 import json
-import platform
 import statistics
 import tempfile
 import time
@@ -35,6 +34,7 @@ from common.policy import (
 from common.protocol import Segment, decode_segment, encode_segment, frame_table
 from common.sensors import LidarSpec, observation_spec
 from rollout_worker.worker import Rollouts
+from trainer.peak import cpu_model
 
 _IMAGE_RANDOMIZED = {"texture": 1.0, "lighting": 1.0, "track_color": 1.0}
 CASES: dict[str, tuple[tuple[str, ...] | None, int, dict]] = {
@@ -241,18 +241,6 @@ def policy_figures(repeats: int = 5) -> dict:
         "load_checkpoint_ms": round(statistics.median(load_full), 1),
         "load_acting_ms": round(statistics.median(load_acting), 1),
     }
-
-
-def cpu_model() -> str:
-    """The CPU's model name (``/proc/cpuinfo``), else what ``platform`` knows."""
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def bench_wire(segments: int = 8, steps: int = 32, repeats: int = 5, seed: int = 0) -> dict:

@@ -17,11 +17,9 @@ Runtime, with how far apart their outputs are.
 
 from __future__ import annotations
 
-import platform
 import statistics
 import time
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -31,6 +29,7 @@ from racer.runconfig import build_run
 from rollout_worker.onnx_policy import Actor, OnnxPolicy, acting_copy
 from rollout_worker.worker import Rollouts, segment_worker_ids
 from sim.bench import env_parts_us, pin_to_one_core
+from trainer.peak import cpu_model
 
 ACT_CALLS = 20
 """Forward passes per timed run of ``act_ms``."""
@@ -133,13 +132,3 @@ def act_ms(model: torch.nn.Module, batches: Sequence[int], repeats: int) -> dict
         for name in actors:
             out[name][str(b)] = statistics.median(times[name])
     return out
-
-
-def cpu_model() -> str:
-    """The CPU's model name (``/proc/cpuinfo`` on Linux), else what ``platform`` says."""
-    info = Path("/proc/cpuinfo")
-    if info.exists():
-        for line in info.read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    return platform.processor() or platform.machine()

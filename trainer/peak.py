@@ -19,9 +19,11 @@ gets.
 from __future__ import annotations
 
 import math
+import platform
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 from torch import nn
@@ -126,3 +128,15 @@ def update_flops(model: ActorCritic, batch: int) -> int:
     obs = torch.zeros((1, *model.obs_shape), dtype=torch.uint8)
     lidar = torch.zeros((1, model.lidar_size)) if model.lidar_size else None
     return step_flops(layer_costs(model, obs, lidar), batch)
+
+
+def cpu_model() -> str:
+    """The CPU's model name (Linux's /proc/cpuinfo), else what ``platform`` says: the machine a benchmark's
+    figures were measured on."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.lower().startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
