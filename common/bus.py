@@ -8,13 +8,16 @@ Errors of the connection (``redis.RedisError``) pass through: the roles ride the
 from __future__ import annotations
 
 import json
-from typing import Any
+from typing import Any, TypeVar
 
 import redis
 
 from common.keys import Keys
 from common.protocol import CarPose, EvaluationSummary, Heartbeat, PolicyVersion, ProtocolError
 from common.redis_util import connect_checked
+
+M = TypeVar("M", CarPose, Heartbeat)
+"""A JSON message kept one per key (``Bus._messages``)."""
 
 EVALUATIONS_KEPT = 1000
 """Evaluation summaries kept in Redis (a run lasts hours; the store keeps every evaluation)."""
@@ -94,16 +97,7 @@ class Bus:
 
     def heartbeats(self) -> tuple[list[Heartbeat], int]:
         """The live workers' heartbeats (SCAN, never KEYS), and how many keys held something malformed."""
-        beats, bad = [], 0
-        for key in self.redis.scan_iter(match=self.keys.heartbeat_pattern, count=100):
-            raw = self.redis.get(key)
-            if raw is None:
-                continue  # expired between SCAN and GET
-            try:
-                beats.append(Heartbeat.from_json(raw))
-            except ProtocolError:
-                bad += 1
-        return beats, bad
+        return self._messages(self.keys.heartbeat_pattern, Heartbeat)
 
     # --- the trainer's state ---------------------------------------------------------------------
     def set_trainer_status(self, status: dict[str, Any]) -> None:
@@ -184,16 +178,21 @@ class Bus:
 
     def poses(self) -> tuple[list[CarPose], int]:
         """The watched workers' latest poses (SCAN, then one MGET), and how many keys held something malformed."""
-        keys = list(self.redis.scan_iter(match=self.keys.pose_pattern, count=100))
-        poses, bad = [], 0
+        return self._messages(self.keys.pose_pattern, CarPose)
+
+    def _messages(self, pattern: str, kind: type[M]) -> tuple[list[M], int]:
+        """The messages of type ``kind`` in the keys matching ``pattern`` (SCAN, never KEYS, then one MGET), and how
+        many keys held something malformed."""
+        keys = list(self.redis.scan_iter(match=pattern, count=100))
+        found, bad = [], 0
         for raw in self.redis.mget(keys) if keys else []:
             if raw is None:
                 continue  # expired between SCAN and MGET
             try:
-                poses.append(CarPose.from_json(raw))
+                found.append(kind.from_json(raw))
             except ProtocolError:
                 bad += 1
-        return poses, bad
+        return found, bad
 
     def frame(self, worker_id: str) -> bytes | None:
         """A watched worker's latest camera frame (JPEG bytes, never decoded here), None if it has none."""
