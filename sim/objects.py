@@ -46,6 +46,15 @@ BOT_CAR_OBSTACLE = "bot_car_obstacle"
 BOT_CAR = "bot_car"
 """A moving bot car (simapp ``BotCarsCtrl``: named ``bot_car_<i>``)."""
 
+
+def pause_steps(seconds: float, dt: float = CONTROL_DT_S) -> int:
+    """Control steps a pause of ``seconds`` lasts in the simapp: its pauses (the bots' ``BotCarsCtrl.pause_duration``,
+    the car's ``RolloutCtrl._pause_duration``) count down by the sim time each step and end at the first
+    ``judge_action`` that finds them <= 0, which is one step after a 0 s pause. ``seconds / dt`` is rounded off
+    first: 2.0 / (1/15) is 30.000000000000004 in floating point, and the simapp's count ends on the 30th step."""
+    return max(1, math.ceil(round(seconds / dt, 6)))
+
+
 CLOSEST_OBJ_GAP_M = 1.0
 """simapp ``agent_ctrl/constants.py: CLOSEST_OBJ_GAP``: an object this close along the centre line to a start or
 reset point moves the car to the other lane."""
@@ -499,7 +508,8 @@ class BotCars:
         self.crash_count = 0
         self.objects: list[WorldObject] = []
         self._lane_change_duration = cfg.lane_change_distance / cfg.bot_car_speed
-        self._pause_left = 0.0
+        self._pause_left = 0
+        """Control steps the bots still stand still."""
         self._rng = np.random.default_rng()
 
     def reset(self, rng: np.random.Generator, reverse: bool) -> list[WorldObject]:
@@ -507,7 +517,7 @@ class BotCars:
         self._rng = rng
         self._geom = _geometry(self.track, reverse)
         inner, outer = _lane_splines(self.track, reverse)
-        self.time, self.crash_count, self._pause_left = 0.0, 0, 0.0
+        self.time, self.crash_count, self._pause_left = 0.0, 0, 0
         n = self.cfg.number_of_bot_cars
         dists, use_outer = _spread(
             self._geom.length, n, self.cfg.min_distance_between_bot_cars, self.cfg.randomize_bot_car_locations, rng
@@ -528,14 +538,14 @@ class BotCars:
     @property
     def paused(self) -> bool:
         """The bots stand still after one ran into the car (``AgentPhase.PAUSE``)."""
-        return self._pause_left > 0.0
+        return self._pause_left > 0
 
     def step(self) -> list[WorldObject]:
         """One control step: the clock moves by ``dt``; unless paused, lane changes and poses are updated
         (``BotCarsCtrl.send_action``); while paused the bots keep their poses (``judge_action``'s PAUSE phase)."""
         self.time += self.dt
-        if self._pause_left > 0.0:
-            self._pause_left -= self.dt
+        if self._pause_left > 0:
+            self._pause_left -= 1
             return self.objects
         self._lane_changes()
         self.objects = self._poses()
@@ -543,12 +553,14 @@ class BotCars:
 
     def penalize(self) -> None:
         """A bot ran into the car from behind (:func:`car_at_fault` False): ``BotCarsCtrl.judge_action`` pauses all
-        bots for ``penalty_seconds`` (not again while paused), shifting their lane-change times and their clock."""
-        if self._pause_left > 0.0:
+        bots for ``penalty_seconds`` (not again while paused), shifting their lane-change times and their clock.
+        They stand still for the next :func:`pause_steps` steps (30 for 2 s), then go on one step's distance
+        from where they stopped."""
+        if self._pause_left > 0:
             return
         self._end_times = [t + self.cfg.penalty_seconds for t in self._end_times]
         self.crash_count += 1
-        self._pause_left += self.cfg.penalty_seconds
+        self._pause_left = pause_steps(self.cfg.penalty_seconds, self.dt)
 
     def distance(self, index: int, time: float | None = None) -> float:
         """``_get_dist_from_sim_time``: bot ``index``'s distance along the centre line at ``time`` (default now)."""
@@ -944,6 +956,8 @@ class RaceObjects:
         self.race = race
         self._bots = BotCars(track, race.head_to_bot) if race.bot_car_count else None
         self.objects: list[WorldObject] = []
+        self.crashed_into: WorldObject | None = None
+        """The object of the car's last crash (:meth:`crashed` True) this episode."""
         self._reverse = False
         self._car_crashes = 0
 
@@ -962,6 +976,7 @@ class RaceObjects:
         """New objects for an episode in this direction (the simapp's order: obstacles, then bot cars)."""
         self._reverse = reverse
         self._car_crashes = 0
+        self.crashed_into = None
         obstacles = []
         if self.race.obstacle_count:
             obstacles = place_obstacles(self.track, self.race.object_avoidance, rng, reverse)
@@ -976,6 +991,15 @@ class RaceObjects:
             self.objects = [*obstacles, *self._bots.step()]
         return self.objects
 
+    def pause(self, seconds: float) -> list[WorldObject]:
+        """The car's evaluation pause (simapp ``RolloutCtrl``'s PAUSE phase), in one go: the bots drive on through
+        its :func:`pause_steps` steps, as their poses follow the sim time, and the car, held and non-collidable
+        (``BlinkEffect``; the bots' ``judge_action`` skips a non-collidable car), neither crashes nor stops them."""
+        if self._bots:
+            for _ in range(pause_steps(seconds, self._bots.dt)):
+                self.step()
+        return self.objects
+
     def crashed(self, car_pose: Pose, car_progress: float, car_start_fraction: float) -> bool:
         """The simapp's crash verdict for the car at this step: touching an obstacle is a crash; touching a bot
         is the car's crash only if the car is behind it (:func:`car_at_fault`), otherwise the bots pause."""
@@ -988,6 +1012,7 @@ class RaceObjects:
         )
         if at_fault:
             self._car_crashes += 1
+            self.crashed_into = obj
             return True
         if self._bots:
             self._bots.penalize()

@@ -49,6 +49,7 @@ from sim.objects import (
     object_params,
     object_progress,
     obstacle_gap_m,
+    pause_steps,
     place_obstacles,
     reset_pose,
     start_pose,
@@ -689,14 +690,15 @@ def test_no_lane_change_without_the_flag(loop):
 
 
 def test_bots_pause_after_running_into_the_car(wide):
-    """judge_action: the bots stop for penalty_seconds and their clock loses them (crash_count · penalty)."""
-    cfg = HeadToBotConfig(number_of_bot_cars=1, penalty_seconds=1.0)
-    bots = BotCars(wide, cfg)
+    """judge_action: the bots stop for penalty_seconds (2.0 s: exactly 30 steps, as the simapp's pause_duration,
+    counted down by the sim time, ends at the 30th step's judge_action) and their clock loses them
+    (crash_count · penalty), so they resume one step's distance on from where they stopped."""
+    bots = BotCars(wide, HeadToBotConfig(number_of_bot_cars=1))
     bots.reset(np.random.default_rng(0), False)
     for _ in range(30):
         bots.step()
     before = bots.objects
-    d_before, t_before = bots.distance(0), bots.time
+    d_before = bots.distance(0)
     bots.penalize()
     bots.penalize()  # ignored while paused
     assert bots.crash_count == 1 and bots.paused
@@ -704,11 +706,15 @@ def test_bots_pause_after_running_into_the_car(wide):
     while bots.paused:
         assert bots.step() == before
         paused_steps += 1
-    assert paused_steps in (15, 16)  # 1 s of 1/15 s steps (float rounding may take one more)
+    assert paused_steps == 30
     bots.step()
-    # The clock left out the penalty: the bots go on from where they stopped.
-    assert bots.distance(0) - d_before == pytest.approx((bots.time - t_before - 1.0) * 0.2, abs=1e-9)
-    assert 0 < bots.distance(0) - d_before <= 2 * CONTROL_DT_S * 0.2 + 1e-9
+    assert bots.objects != before
+    assert bots.distance(0) - d_before == pytest.approx(CONTROL_DT_S * 0.2, abs=1e-9)  # one step, not two
+
+
+def test_a_pause_lasts_the_simapps_whole_steps():
+    # pause_duration -= the step's sim time; the phase changes at the first judge_action with pause_duration <= 0.
+    assert [pause_steps(s) for s in (0.0, 1.0, 2.0, 5.0, 2.1)] == [1, 15, 30, 75, 32]
 
 
 def test_object_progress_is_the_bot_front_point(loop):
