@@ -32,8 +32,9 @@ from common.simtrace import OBSTACLE_COLUMN
 from sim.augment import augment_frame, is_identity, needs_color
 from sim.camera import CameraSpec, GroundCamera, MujocoCamera, StereoGroundCamera
 from sim.lidar import Lidar, scan_due
-from sim.objects import RaceObjects, WorldObject, as_boxes, reset_pose, start_pose
+from sim.obstacles import WorldObject, as_boxes
 from sim.physics import CarPhysics, Pose
+from sim.race_rules import RaceObjects, reset_pose, start_pose
 from sim.reward import RewardFunction, RewardFunctionError, example_path, load_reward_function
 from sim.task import RacingTask, Status, StepResult
 from sim.texture import (

@@ -1,8 +1,9 @@
-"""Tests for sim.objects and common.race: DeepRacer's obstacles and bot cars as the simapp computes them.
+"""Tests for DeepRacer's obstacles and bot cars as the simapp computes them (sim.obstacles, sim.placement,
+sim.bots, sim.object_params, sim.race_rules) and for common.race.
 
 Expected values are worked out by hand or by transcribing the simapp's own formula here (aws-deepracer-community/
 deepracer-simapp, ``bundle/markov/…``; each test names the file and function), with shapely on the raw waypoints,
-independently of sim.objects' own geometry.
+independently of racer's own lane geometry (sim.lanes).
 """
 
 from __future__ import annotations
@@ -28,33 +29,20 @@ from common.race import (
     parse_object_positions,
     race_config_from_drfc,
 )
-from sim.objects import (
+from sim.bots import CONTROL_DT_S, BotCars, RaceSetupError, object_progress, pause_steps
+from sim.object_params import OBJECT_PARAM_KEYS, empty_object_params, in_camera_view, object_params
+from sim.obstacles import (
     BOT_CAR,
     BOT_CAR_OBSTACLE,
     CAR_CRASH_LENGTH_M,
     CAR_CRASH_WIDTH_M,
-    CONTROL_DT_S,
     FOOTPRINTS,
-    OBJECT_PARAM_KEYS,
-    BotCars,
-    Obstacles,
-    RaceSetupError,
     WorldObject,
     as_boxes,
-    car_at_fault,
-    collided_object,
-    empty_object_params,
-    in_camera_view,
-    is_crashed,
-    object_params,
-    object_progress,
-    obstacle_gap_m,
-    pause_steps,
-    place_obstacles,
-    reset_pose,
-    start_pose,
 )
 from sim.physics import FRONT_POINT_M, Pose
+from sim.placement import Obstacles, obstacle_gap_m, place_obstacles
+from sim.race_rules import car_at_fault, collided_object, is_crashed, reset_pose, start_pose
 from sim.reward import PARAM_KEYS
 from sim.track import Track, load_track
 from tests.shared_data import needs_deepracer_tracks

@@ -14,7 +14,7 @@ from common.defaults import DEFAULT_TRACK
 from common.race import RaceConfig
 from common.sensors import CAMERA_KEY, LIDAR_KEY
 from sim.env import RacerEnv
-from sim.objects import BOT_CAR, as_boxes
+from sim.obstacles import BOT_CAR, as_boxes
 from sim.physics import FRONT_POINT_M, Pose
 
 ONE_BOX = RaceConfig(
@@ -245,7 +245,7 @@ def test_an_evaluation_pauses_the_car_where_it_ran_into_a_bot_while_the_bots_dri
 @pytest.mark.parametrize("reverse", [False, True])
 def test_the_envs_object_params_equal_a_fresh_computation(reverse: bool) -> None:
     # The task hands object_params its own projection of the car's model point (a speed-up): same values.
-    from sim.objects import object_params
+    from sim.object_params import object_params
 
     race = RaceConfig(race_type="OBJECT_AVOIDANCE", object_avoidance={"randomize_obstacle_locations": True})
     env = RacerEnv(track="racer_loop_cw", race=race)  # a clockwise loop
