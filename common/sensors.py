@@ -173,8 +173,8 @@ def lidar_from_ranges(sensor: str, ranges: np.ndarray) -> np.ndarray:
     """The LiDAR observation (float32) of one scan of ``LIDAR_SAMPLES`` ranges in metres, as the simapp's input
     filters make it (``sagemaker_graph_manager.py``):
 
-    * ``LIDAR``: ``np.clip(ranges, 0.15, 1.0)`` (``ObservationClippingFilter``); an infinite range (no return)
-      reads 1.0. A NaN stays NaN, and ``check_lidar`` refuses it.
+    * ``LIDAR``: ``np.clip(ranges, 0.15, 1.0)`` (``ObservationClippingFilter``); +inf (no return) reads 1.0,
+      -inf (a return nearer than the min range) 0.15. A NaN stays NaN, and ``check_lidar`` refuses it.
     * ``SECTOR_LIDAR`` (``ObservationSectorDiscretizeFilter(8, 1, 0.5)``): infinite ranges become 0.5, the minimum
       of each run of 8 consecutive ranges is floored to 0 (closer than 0.5 m) or 1, one-hot encoded with the
       "nothing" column dropped: a sector reads 1.0 when something is closer than 0.5 m, else 0.0 (a sector holding

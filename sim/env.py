@@ -32,8 +32,9 @@ from common.simtrace import OBSTACLE_COLUMN
 from sim.augment import augment_frame, is_identity, needs_color
 from sim.camera import CameraSpec, GroundCamera, MujocoCamera, StereoGroundCamera
 from sim.lidar import Lidar, scan_due
-from sim.objects import RaceObjects, WorldObject, as_boxes, reset_pose, start_pose
+from sim.obstacles import WorldObject, as_boxes
 from sim.physics import CarPhysics, Pose
+from sim.race_rules import RaceObjects, reset_pose, start_pose
 from sim.reward import RewardFunction, RewardFunctionError, example_path, load_reward_function
 from sim.task import RacingTask, Status, StepResult
 from sim.texture import (
@@ -251,8 +252,9 @@ class RacerEnv(gym.Env):
     def _penalty_reset(self, result: StepResult) -> float:
         """An evaluation reset (simapp ``RolloutCtrl._judge_action_at_run_phase`` and
         ``_get_car_reset_model_state``): after an off-track, crash, reversal or immobilization with resets left, the
-        car is put back on the track (behind a nearby obstacle, in the other lane) and the clock runs on by the
-        penalty, which lands in the lap time. Returns the penalty in seconds; 0 when the episode ends instead."""
+        car is put back on the track (behind a nearby obstacle, in the other lane; after a crash into a bot, where it
+        is) and the clock runs on by the penalty, which lands in the lap time; the bots drive on through the pause
+        (``RaceObjects.pause``). Returns the penalty in seconds; 0 when the episode ends instead."""
         penalties = self.config.race.penalties
         by_status = {
             Status.OFF_TRACK: penalties.off_track_penalty,
@@ -263,20 +265,26 @@ class RacerEnv(gym.Env):
         if self._resets_left <= 0 or result.status not in by_status:
             return 0.0
         self._resets_left -= 1
-        # After a crash the car is put back where it is; otherwise where it was a step ago, still on the track.
-        at = result if result.status == Status.CRASHED else self._last
-        pose = reset_pose(
-            self.track,
-            self.task.state.reversed,
-            float(at.params["projection_distance"]),
-            Pose(*(at.params[k] for k in ("x", "y")), 0.0),
-            self.objects,
-            behind_m=penalties.reset_behind_dist,
-        )
+        crashed = result.status == Status.CRASHED
+        if crashed and self.race.crashed_into is not None and not self.race.crashed_into.is_obstacle:
+            # A crash into a bot: the simapp pauses the car where it is (only an obstacle's name moves it).
+            pose = self.physics.pose
+        else:
+            # After a crash the car is put back where it is; otherwise where it was a step ago, still on the track.
+            at = result if crashed else self._last
+            pose = reset_pose(
+                self.track,
+                self.task.state.reversed,
+                float(at.params["projection_distance"]),
+                Pose(*(at.params[k] for k in ("x", "y")), 0.0),
+                self.objects,
+                behind_m=penalties.reset_behind_dist,
+            )
         self.physics.reset(pose)
+        penalty = by_status[result.status]
+        self.objects = self.race.pause(penalty)
         self._place_objects()
         self.task.relocate(pose)
-        penalty = by_status[result.status]
         self._pause_s += penalty
         return max(penalty, 1e-9)  # a 0 s penalty still resets
 

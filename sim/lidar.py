@@ -10,19 +10,24 @@ What DeepRacer's simulation does (aws-deepracer-community/deepracer-simapp, file
   ``base_link`` (``urdf/deepracer/deepracer_*_lidar.urdf``). The sensor is turned half a turn: sample 0 looks 30°
   left of straight ahead and the samples sweep anticlockwise through left, behind and right to 30° right of
   ahead; the 60° blind cone is straight ahead (where the cameras look).
-- gz-sensors (``src/Lidar.cc``, ``Lidar::PublishLidarScan``) adds the noise to each range and clamps it to
-  [range min, range max]: a ray that hits nothing (+inf, noise or not) reads 12.0, and the range resolution is not
-  applied. Geometry nearer than the minimum range is inside the rays' near clip and not seen (gz-rendering's
-  ``gpu_rays_1st_pass_fs.glsl``).
+- The ranges (Gazebo Harmonic: gz-rendering 8 ``ogre2/src/Ogre2GpuRays.cc`` and
+  ``ogre2/.../gpu_rays_1st_pass_fs.glsl``, gz-sensors 8 ``src/GpuLidarSensor.cc`` and ``src/Lidar.cc``): the sensor
+  renders a cube map whose near clip is min range / sqrt(3) along each face's axis, and its shader reads a hit
+  beyond the max range as +inf and one nearer than the min range as -inf (``SetClamp(false)``: REP 117's "too
+  close"); geometry inside the near clip is not drawn at all. ``Lidar::ApplyNoise`` adds the noise to every range
+  and clamps the finite ones to [min, max]; ±inf stay infinite through ``PublishLidarScan`` and the ROS bridge. No
+  step applies ``<range><resolution>`` (gz-sensors only returns it from ``Lidar::RangeResolution``): ranges are not
+  quantized to 0.01 m.
 - LIDAR observation: ``markov/sagemaker_graph_manager.py`` adds ``ObservationClippingFilter(0.15, 1.0)``
   (``rl_coach/filters/observation/observation_clipping_filter.py``: ``np.clip``) to the 64 ranges
-  (``markov/sensors/sensors_rollout.py: Lidar._scan_cb`` keeps ``LaserScan.ranges`` as they are); observation
-  space (64,) in [0.15, 1.0] (``markov/sensors/utils.py``, ``TRAINING_LIDAR_SIZE`` in
-  ``markov/environments/constants.py``).
+  (``markov/sensors/sensors_rollout.py: Lidar._scan_cb`` keeps ``LaserScan.ranges`` as they are), so a miss
+  reads 1.0 and an object nearer than 0.15 m reads 0.15; observation space (64,) in [0.15, 1.0]
+  (``markov/sensors/utils.py``, ``TRAINING_LIDAR_SIZE`` in ``markov/environments/constants.py``).
 - SECTOR_LIDAR: the same scan through ``ObservationSectorDiscretizeFilter(num_sectors=8, num_values_per_sector=1,
   clipping_dist=0.5)`` (``NUMBER_OF_LIDAR_SECTORS``, ``SECTOR_LIDAR_CLIPPING_DIST`` in
   ``markov/environments/constants.py``; ``markov/filters/observation/observation_sector_discretize_filter.py``):
-  the minimum of each run of 8 consecutive samples, 1.0 where it is below 0.5 m, else 0.0; shape (8,).
+  infinite ranges (either sign) become 0.5 first, then the minimum of each run of 8 consecutive samples, 1.0 where
+  it is below 0.5 m, else 0.0; shape (8,). An object nearer than 0.15 m is therefore not seen by SECTOR_LIDAR.
 - DISCRETIZED_SECTOR_LIDAR: the same filter with the model metadata's sectors, values per sector and clipping
   distance (``markov/boto/s3/files/model_metadata.py``).
 
@@ -32,7 +37,9 @@ the object slots (geom group :data:`sim.world.OBJECT_GEOM_GROUP`, see :func:`sim
 so the car never sees itself. The scene holds only the track and those objects: nothing else stands at lidar
 height (DeepRacer's worlds may have walls or buildings there). Boxes lower than the sensor
 (:attr:`LidarSpec.height_m`, 0.185 m) are not seen, as in DeepRacer. A sensor inside a box (the car overlapping
-it: a crash) reads the box's far side where Gazebo would see through it. :func:`analytic_ranges` is the same scan
+it: a crash) reads the box's far side where Gazebo would see through it, and a hit inside the cube map's near clip
+reads +inf without looking behind it (only an object overlapping the car's body is that near: the car's sides are
+0.098 m from the sensor, the clip at most 0.087 m along a face's axis). :func:`analytic_ranges` is the same scan
 computed in closed form (ray against oriented box), the reference the tests hold the MuJoCo cast to.
 
 The env calls, each step after the physics (and after :func:`sim.world.set_objects` when objects moved)::
@@ -110,6 +117,12 @@ class LidarSpec:
         """(samples,) ray directions in the car frame, radians anticlockwise from ahead, in scan order."""
         return self.yaw + np.linspace(self.min_angle, self.max_angle, self.samples)
 
+    def face_cos(self) -> np.ndarray:
+        """(samples,) cosine between each ray and the axis of the cube-map face that draws it (faces along the
+        sensor frame's axes, every 90°): a hit's depth on that face is its range times this."""
+        laser = np.linspace(self.min_angle, self.max_angle, self.samples)
+        return np.cos((laser + math.pi / 4) % (math.pi / 2) - math.pi / 4)
+
 
 class Lidar:
     """DeepRacer's LIDAR: 64 ranges clipped to [0.15, 1.0] m, cast against the object slots of ``model``."""
@@ -128,8 +141,9 @@ class Lidar:
         self._pnt = np.empty(3)
 
     def scan(self, pose: Pose, rng: np.random.Generator | None = None) -> np.ndarray:
-        """The raw scan (DeepRacer's ``LaserScan.ranges``): (samples,) float32 metres in [min, max range], max
-        where nothing is hit; Gaussian noise drawn from ``rng`` (none without one), then clamped (gz-sensors)."""
+        """The raw scan (DeepRacer's ``LaserScan.ranges``): (samples,) float32 metres in [min, max range], +inf
+        where nothing is hit, -inf where a hit is nearer than the min range; Gaussian noise drawn from ``rng`` (none
+        without one), then the finite ranges clamped (gz-sensors)."""
         s = self.spec
         c, si = math.cos(pose.yaw), math.sin(pose.yaw)
         self._pnt[:] = (pose.x + c * s.forward_m - si * s.left_m, pose.y + si * s.forward_m + c * s.left_m, s.height_m)
@@ -166,13 +180,17 @@ class SectorLidar(Lidar):
 
 
 def _finish(dist: np.ndarray, spec: LidarSpec, rng: np.random.Generator | None) -> np.ndarray:
-    """Ray distances (-1 = no hit) to a DeepRacer scan: misses and hits nearer than the near clip are +inf (gz
-    gpu_lidar), then noise (inf stays inf) and the clamp to [min, max] range (gz-sensors' order): misses read
-    exactly the max range."""
-    ranges = np.where((dist < spec.min_range) | (dist > spec.max_range), np.inf, dist)
+    """Ray distances (-1 = no hit) to a DeepRacer scan (module docstring): a miss, or a hit inside the cube map's
+    near clip, is +inf; a hit nearer than the min range is -inf; then the noise (infinities stay) and the clamp of
+    the finite ranges to [min, max] range (gz-sensors' order)."""
+    clipped = dist * spec.face_cos() < spec.min_range / math.sqrt(3.0)
+    ranges = np.where((dist < 0) | clipped | (dist > spec.max_range), np.inf, dist)
+    ranges = np.where(ranges < spec.min_range, -np.inf, ranges)
     if rng is not None and spec.noise_stddev > 0:
         ranges = ranges + rng.normal(0.0, spec.noise_stddev, ranges.shape)
-    return np.clip(ranges, spec.min_range, spec.max_range).astype(np.float32)
+    finite = np.isfinite(ranges)
+    ranges[finite] = np.clip(ranges[finite], spec.min_range, spec.max_range)
+    return ranges.astype(np.float32)
 
 
 def analytic_ranges(

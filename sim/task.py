@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim.objects import WorldObject, object_params
+from sim.object_params import object_params
+from sim.obstacles import WorldObject
 from sim.physics import FRONT_POINT_M, Pose
 from sim.track import Segment, Track, nearest_segment, polyline_segments
 
@@ -156,8 +157,8 @@ class RacingTask:
         """Params and status after a step (or at the start with ``count_step=False``).
 
         ``objects`` are the obstacles and bot cars of an object-avoidance or head-to-bot race (their params are
-        the simapp's, ``sim/objects.py: object_params``); ``crashed`` is the env's verdict of the crash rule
-        (``sim/objects.py: collided_object`` and, for a bot, ``car_at_fault``), which ends the episode."""
+        the simapp's, ``sim/object_params.py: object_params``); ``crashed`` is the env's verdict of the crash rule
+        (``sim/race_rules.py: collided_object`` and, for a bot, ``car_at_fault``), which ends the episode."""
         st = self.state
         assert st is not None, "begin() an episode first"
         track = st.track

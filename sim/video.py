@@ -23,7 +23,7 @@ import numpy as np
 
 from common.sensors import split_observation
 from sim.env import RacerEnv
-from sim.objects import WorldObject
+from sim.obstacles import WorldObject
 from sim.physics import Pose
 from sim.texture import TextureFrame
 from sim.track import Track

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from sim.objects import BOT_CAR, BOT_CAR_OBSTACLE, WorldObject
+from sim.obstacles import BOT_CAR, BOT_CAR_OBSTACLE, WorldObject
 from sim.physics import Pose
 from sim.texture import TextureFrame
 from sim.track import Track

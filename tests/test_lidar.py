@@ -137,7 +137,7 @@ def test_car_and_ground_are_never_hit(world) -> None:
     set_objects(model, data, np.zeros((0, 6)))
     # The car stands at the origin; its own geoms surround the sensor and the ground plane is right below it.
     scan = Lidar(model, data).scan(Pose(0.0, 0.0, 0.0))
-    np.testing.assert_array_equal(scan, np.float32(LIDAR_MAX_RANGE))
+    np.testing.assert_array_equal(scan, np.float32(np.inf))  # gz: a miss is +inf (REP 117), not the max range
 
 
 # --- observations ---------------------------------------------------------------------------------------
@@ -159,7 +159,7 @@ def test_lidar_observation_shape_range_and_clipping(world) -> None:
     assert clean[13] == 1.0
     assert 8 <= np.sum(clean < 1.0) <= 13  # the near box spans about ±27°
     scan = lidar.scan(pose)
-    assert scan.dtype == np.float32 and scan.max() == np.float32(LIDAR_MAX_RANGE)
+    assert scan.dtype == np.float32 and scan.max() == np.inf and scan[np.isfinite(scan)].max() < LIDAR_MAX_RANGE
     # The raw scan keeps the distance: sample 13 looks 1.9° behind the left, at the face 2.8 m away.
     assert scan[13] == pytest.approx(2.8 / math.cos(math.radians(30 + 13 * 300 / 63 - 90)), abs=1e-3)
 
@@ -172,10 +172,16 @@ def test_blind_cone_ahead_and_min_range(world) -> None:
     np.testing.assert_array_equal(lidar.observe(pose), np.float32(1.0))
     set_objects(model, data, np.array([box_at(pose, 0.5, 35.0)]))  # just inside the scan on the left
     assert lidar.observe(pose)[0] < 1.0
-    # A face nearer than the 0.15 m minimum range is inside the rays' near clip: not seen (gz gpu_lidar).
+    # A face nearer than the 0.15 m minimum range reads -inf (gz-rendering's gpu_rays_1st_pass_fs.glsl: l < near
+    # → min, -inf unclamped), which the LIDAR filter clips to 0.15 and the SECTOR_LIDAR filter takes for nothing.
     set_objects(model, data, np.array([box_at(pose, 0.3, 180.0, size=(0.4, 0.4, 0.3))]))
     scan = lidar.scan(pose)
-    assert scan[31] == np.float32(LIDAR_MAX_RANGE)
+    assert scan[31] == -np.inf and np.all(np.isneginf(lidar.scan(pose, np.random.default_rng(0))[31:33]))
+    assert lidar.observe(pose)[31] == np.float32(LIDAR_MIN_RANGE)
+    assert SectorLidar(model, data).observe(pose)[3:5].tolist() == [0.0, 0.0]
+    # Inside the cube map's near clip (0.15 / sqrt(3) m along the face's axis) nothing is drawn: no hit.
+    set_objects(model, data, np.array([box_at(pose, 0.28, 180.0, size=(0.4, 0.4, 0.3))]))
+    assert lidar.scan(pose)[31] == np.inf
     # ...but a face just beyond it is, and noise cannot take it below 0.15.
     set_objects(model, data, np.array([box_at(pose, 0.36, 180.0, size=(0.4, 0.4, 0.3))]))
     rng = np.random.default_rng(1)
@@ -190,10 +196,22 @@ def test_noise_is_gaussian_one_centimetre_and_seeded(world) -> None:
     lidar = Lidar(model, data)
     clean = lidar.scan(pose)
     noisy = np.array([lidar.scan(pose, np.random.default_rng(s)) for s in range(300)])
-    err = (noisy - clean)[:, 28:36]  # rays on the box face, far from any clamp
+    err = noisy[:, 28:36] - clean[28:36]  # rays on the box face, far from any clamp
     assert abs(err.mean()) < 0.002 and err.std() == pytest.approx(0.01, rel=0.1)
     np.testing.assert_array_equal(lidar.scan(pose, np.random.default_rng(3)), noisy[3])
-    assert np.all(noisy[:, 0] == np.float32(LIDAR_MAX_RANGE))  # misses: 12 + noise, clamped to 12
+    assert np.all(noisy[:, 0] == np.inf)  # misses: +inf + noise stays +inf (gz-sensors clamps finite ranges only)
+
+
+def test_ranges_are_not_quantized_to_the_range_resolution(world) -> None:
+    # The urdf's <range><resolution>0.01 is never applied: gz-sensors 8 only returns it (Lidar::RangeResolution),
+    # and neither the gpu_rays shaders, Lidar::ApplyNoise, PublishLidarScan nor the ROS bridge round a range.
+    model, data = world
+    pose = Pose(0.0, 0.0, 0.0)
+    set_objects(model, data, np.array([box_at(pose, 0.7034, 180.0, size=(0.4, 2.0, 0.3))]))
+    clean = Lidar(model, data).scan(pose)
+    expected = 0.5034 / math.cos(math.radians(300 / 63 / 2))
+    assert clean[31] == pytest.approx(expected, abs=1e-4)
+    assert abs(clean[31] * 100 - round(clean[31] * 100)) > 0.1  # 0.50384: between two centimetres
 
 
 def test_sector_lidar_sees_a_box_within_half_a_metre(world) -> None:

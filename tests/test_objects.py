@@ -1,8 +1,9 @@
-"""Tests for sim.objects and common.race: DeepRacer's obstacles and bot cars as the simapp computes them.
+"""Tests for DeepRacer's obstacles and bot cars as the simapp computes them (sim.obstacles, sim.placement,
+sim.bots, sim.object_params, sim.race_rules) and for common.race.
 
 Expected values are worked out by hand or by transcribing the simapp's own formula here (aws-deepracer-community/
 deepracer-simapp, ``bundle/markov/…``; each test names the file and function), with shapely on the raw waypoints,
-independently of sim.objects' own geometry.
+independently of racer's own lane geometry (sim.lanes).
 """
 
 from __future__ import annotations
@@ -28,32 +29,20 @@ from common.race import (
     parse_object_positions,
     race_config_from_drfc,
 )
-from sim.objects import (
+from sim.bots import CONTROL_DT_S, BotCars, RaceSetupError, object_progress, pause_steps
+from sim.object_params import OBJECT_PARAM_KEYS, empty_object_params, in_camera_view, object_params
+from sim.obstacles import (
     BOT_CAR,
     BOT_CAR_OBSTACLE,
     CAR_CRASH_LENGTH_M,
     CAR_CRASH_WIDTH_M,
-    CONTROL_DT_S,
     FOOTPRINTS,
-    OBJECT_PARAM_KEYS,
-    BotCars,
-    Obstacles,
-    RaceSetupError,
     WorldObject,
     as_boxes,
-    car_at_fault,
-    collided_object,
-    empty_object_params,
-    in_camera_view,
-    is_crashed,
-    object_params,
-    object_progress,
-    obstacle_gap_m,
-    place_obstacles,
-    reset_pose,
-    start_pose,
 )
 from sim.physics import FRONT_POINT_M, Pose
+from sim.placement import Obstacles, obstacle_gap_m, place_obstacles
+from sim.race_rules import car_at_fault, collided_object, is_crashed, reset_pose, start_pose
 from sim.reward import PARAM_KEYS
 from sim.track import Track, load_track
 from tests.shared_data import needs_deepracer_tracks
@@ -689,14 +678,15 @@ def test_no_lane_change_without_the_flag(loop):
 
 
 def test_bots_pause_after_running_into_the_car(wide):
-    """judge_action: the bots stop for penalty_seconds and their clock loses them (crash_count · penalty)."""
-    cfg = HeadToBotConfig(number_of_bot_cars=1, penalty_seconds=1.0)
-    bots = BotCars(wide, cfg)
+    """judge_action: the bots stop for penalty_seconds (2.0 s: exactly 30 steps, as the simapp's pause_duration,
+    counted down by the sim time, ends at the 30th step's judge_action) and their clock loses them
+    (crash_count · penalty), so they resume one step's distance on from where they stopped."""
+    bots = BotCars(wide, HeadToBotConfig(number_of_bot_cars=1))
     bots.reset(np.random.default_rng(0), False)
     for _ in range(30):
         bots.step()
     before = bots.objects
-    d_before, t_before = bots.distance(0), bots.time
+    d_before = bots.distance(0)
     bots.penalize()
     bots.penalize()  # ignored while paused
     assert bots.crash_count == 1 and bots.paused
@@ -704,11 +694,15 @@ def test_bots_pause_after_running_into_the_car(wide):
     while bots.paused:
         assert bots.step() == before
         paused_steps += 1
-    assert paused_steps in (15, 16)  # 1 s of 1/15 s steps (float rounding may take one more)
+    assert paused_steps == 30
     bots.step()
-    # The clock left out the penalty: the bots go on from where they stopped.
-    assert bots.distance(0) - d_before == pytest.approx((bots.time - t_before - 1.0) * 0.2, abs=1e-9)
-    assert 0 < bots.distance(0) - d_before <= 2 * CONTROL_DT_S * 0.2 + 1e-9
+    assert bots.objects != before
+    assert bots.distance(0) - d_before == pytest.approx(CONTROL_DT_S * 0.2, abs=1e-9)  # one step, not two
+
+
+def test_a_pause_lasts_the_simapps_whole_steps():
+    # pause_duration -= the step's sim time; the phase changes at the first judge_action with pause_duration <= 0.
+    assert [pause_steps(s) for s in (0.0, 1.0, 2.0, 5.0, 2.1)] == [1, 15, 30, 75, 32]
 
 
 def test_object_progress_is_the_bot_front_point(loop):

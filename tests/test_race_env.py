@@ -14,8 +14,8 @@ from common.defaults import DEFAULT_TRACK
 from common.race import RaceConfig
 from common.sensors import CAMERA_KEY, LIDAR_KEY
 from sim.env import RacerEnv
-from sim.objects import BOT_CAR, as_boxes
-from sim.physics import Pose
+from sim.obstacles import BOT_CAR, as_boxes
+from sim.physics import FRONT_POINT_M, Pose
 
 ONE_BOX = RaceConfig(
     race_type="OBJECT_AVOIDANCE", object_avoidance={"object_positions": [{"progress": 0.1, "lane": 1}]}
@@ -213,10 +213,39 @@ def test_an_evaluation_puts_the_car_back_behind_the_box_with_the_collision_penal
     assert terminated and info["episode_status"] == "crashed"  # training: a crash ends the episode
 
 
+def test_an_evaluation_pauses_the_car_where_it_ran_into_a_bot_while_the_bots_drive_on(tmp_path: Path) -> None:
+    # simapp RolloutCtrl._judge_action_at_run_phase: after a crash into a bot (a name without "obstacle") the car is
+    # paused where it is, non-collidable (BlinkEffect), for COLLISION_PENALTY seconds; the bots' poses follow the
+    # sim time (BotCarsCtrl._get_dist_from_sim_time), so they drive on through the pause and the car goes on behind.
+    race = RaceConfig(race_type="HEAD_TO_BOT", head_to_bot={"number_of_bot_cars": 1}, penalties={"number_of_resets": 3})
+    env = RacerEnv(track=DEFAULT_TRACK, race=race, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
+    env.reset(seed=0, options={"start_index": 0, "evaluation": True})
+    bot = env.objects[0]
+    start = Pose(bot.x - 0.8 * math.cos(bot.yaw), bot.y - 0.8 * math.sin(bot.yaw), bot.yaw)  # behind it, in its lane
+    index = int(env.track.project(np.array([[start.x, start.y]])).segment[0])
+    env.reset(seed=0, options={"start_index": index, "evaluation": True})
+    env.physics.reset(start)
+    env._place_objects()
+    for _ in range(40):
+        bot_before = env.objects[0]
+        _, _, terminated, _, info = env.step(0)
+        if info["episode_status"] == "crashed":
+            break
+    assert info["episode_status"] == "crashed" and not terminated and info["pause_duration"] == 5.0
+    front = info["pose"].ahead(FRONT_POINT_M)
+    assert (front[0], front[1]) == pytest.approx((info["params"]["x"], info["params"]["y"]), abs=1e-9)  # not moved
+    where = env.track.project(np.array([[bot_before.x, bot_before.y], [env.objects[0].x, env.objects[0].y]]))
+    assert where.s[1] - where.s[0] == pytest.approx(5.0 * 0.2, abs=0.08)  # 5 s at 0.2 m/s, on its lane
+    for _ in range(15):  # the next second: the car drives on behind the bot without touching it
+        _, _, terminated, _, info = env.step(0)
+        assert info["episode_status"] == "in_progress" and not info["params"]["is_crashed"]
+    assert env.race.crash_count == 1
+
+
 @pytest.mark.parametrize("reverse", [False, True])
 def test_the_envs_object_params_equal_a_fresh_computation(reverse: bool) -> None:
     # The task hands object_params its own projection of the car's model point (a speed-up): same values.
-    from sim.objects import object_params
+    from sim.object_params import object_params
 
     race = RaceConfig(race_type="OBJECT_AVOIDANCE", object_avoidance={"randomize_obstacle_locations": True})
     env = RacerEnv(track="racer_loop_cw", race=race)  # a clockwise loop

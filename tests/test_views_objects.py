@@ -10,7 +10,7 @@ import pytest
 from common.defaults import DEFAULT_TRACK
 from common.race import RaceConfig
 from sim.env import RacerEnv
-from sim.objects import BOT_CAR, BOT_CAR_OBSTACLE, WorldObject
+from sim.obstacles import BOT_CAR, BOT_CAR_OBSTACLE, WorldObject
 from sim.physics import Pose
 from sim.texture import TextureFrame, draw_surface
 from sim.track import load_track
