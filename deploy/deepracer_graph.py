@@ -414,7 +414,8 @@ def _input_shape(layout: Layout, sensor: str) -> list[int | None]:
 
 def _variable(tf: Any, name: str, shape: tuple[int, ...]) -> Any:
     # Reference variables, as the simapp's (tf.compat.v1.disable_resource_variables); values are loaded after.
-    return tf.compat.v1.get_variable(name, shape=shape, initializer=tf.compat.v1.zeros_initializer(), use_resource=False)
+    zeros = tf.compat.v1.zeros_initializer()
+    return tf.compat.v1.get_variable(name, shape=shape, initializer=zeros, use_resource=False)
 
 
 def _dense(tf: Any, x: Any, name: str, units: int, relu: bool, activation_name: str = "") -> Any:
@@ -435,7 +436,8 @@ def _embedder(tf: Any, x: Any, layout: Layout, sensor: str) -> Any:
             with tf.compat.v1.variable_scope(name):
                 k = _variable(tf, "kernel", (kernel, kernel, int(x.shape[-1]), filters))
                 b = _variable(tf, "bias", (filters,))
-                x = tf.nn.bias_add(tf.nn.conv2d(x, k, [1, stride, stride, 1], "VALID", name="Conv2D"), b, name="BiasAdd")
+                x = tf.nn.conv2d(x, k, [1, stride, stride, 1], "VALID", name="Conv2D")
+                x = tf.nn.bias_add(x, b, name="BiasAdd")
             x = tf.nn.relu(x, name=f"BatchnormActivationDropout_{2 * i + 1}_activation")
     else:
         for i, (units, name) in enumerate(zip(layout.lidar_dense, dense_names(len(layout.lidar_dense)), strict=True)):
@@ -560,4 +562,3 @@ def run_frozen(pb: bytes, feeds: Mapping[str, np.ndarray]) -> np.ndarray:
     with tf.compat.v1.Session(graph=graph) as session:
         feed = {graph.get_tensor_by_name(input_node(k) + ":0"): v.astype(np.float32) for k, v in feeds.items()}
         return session.run(graph.get_tensor_by_name(POLICY_NODE + ":0"), feed)
-
