@@ -177,6 +177,7 @@ def import_model(runs: RunStore, source: str, run_id: str, s3_endpoint: str | No
         {"env_steps": 0, "imported_from": source, "weights": weights_from},
         acting=acting_to_bytes(state),
     )
+    runs.set_pointer(run_id, "best", 0)  # the one checkpoint: what racer eval and racer export take by default
     return {
         "run_id": run_id,
         "version": 0,
