@@ -351,3 +351,66 @@ def test_without_tensorflow_the_deepracer_formats_fail_in_one_line_and_onnx_work
     done = racer("export", "--run-id", "notf", "-o", str(tmp_path / "m.onnx"))
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "m.onnx").stat().st_size > 1000
+
+
+@needs_tf
+def test_sim_folder_uploads_as_dr_upload_model_lays_it_out_and_imports_from_s3(tmp_path, s3_server):
+    import boto3
+
+    from tests.conftest import S3_BUCKET
+
+    runs = make_run(tmp_path, "up")
+    prefix = f"s3://{S3_BUCKET}/dr/up-model"
+    export(tmp_path, runs, "up", "deepracer-sim", tmp_path / "f", "--upload", prefix, "--s3-endpoint", s3_server)
+    listed = boto3.client("s3", endpoint_url=s3_server).list_objects_v2(Bucket=S3_BUCKET, Prefix="dr/up-model/")
+    keys = {o["Key"].removeprefix("dr/up-model/") for o in listed["Contents"]}
+    for key in (
+        "model/.coach_checkpoint",
+        "model/0_Step-1234.ckpt.index",
+        "model/model_0.pb",
+        "model/model_metadata.json",
+        "model/deepracer_checkpoints.json",
+        "model_metadata.json",
+        "reward_function.py",
+        "training_params.yaml",
+        "ip/hyperparameters.json",
+    ):
+        assert key in keys
+    store = str(tmp_path / "store")
+    args = ["import", prefix, "--run-id", "from-s3", "--store", store, "--s3-endpoint", s3_server]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    a, b = policy(runs, "up"), policy(runs, "from-s3")
+    assert all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), b.state_dict().values(), strict=True))
+
+
+@needs_tf
+def test_batch_norm_is_folded_and_what_deepracer_cannot_hold_is_refused(frames):
+    from common.config import PolicyConfig
+    from deploy.deepracer_graph import SimappSession, export_problem, layout_of, run_frozen, simapp_weights
+
+    torch.manual_seed(2)
+    model = build_policy((120, 160, 1), {"kind": "discrete", "n": 5}, PolicyConfig(batch_norm=True))
+    for module in model.modules():
+        if isinstance(module, torch.nn.BatchNorm2d):
+            module.running_mean.uniform_(-0.2, 0.2)
+            module.running_var.uniform_(0.5, 2.0)
+            module.weight.data.uniform_(0.5, 1.5)
+            module.bias.data.uniform_(-0.1, 0.1)
+    with torch.no_grad():
+        model.policy_head.weight.mul_(100.0)
+    model.eval()
+    session = SimappSession(layout_of(model), simapp_weights(model))
+    feeds = {"FRONT_FACING_CAMERA": frames[:200]}
+    theirs = run_frozen(session.frozen(), feeds)
+    session.close()
+    ours = racer_outputs(model, feeds)
+    assert np.abs(theirs - ours).max() < 1e-4 and (theirs.argmax(-1) == ours.argmax(-1)).all()
+    stacked = build_policy((120, 160, 2), {"kind": "discrete", "n": 5}, PolicyConfig(stack_size=2))
+    assert "stack_size" in export_problem(stacked)
+    deep = build_policy((120, 160, 1), {"kind": "discrete", "n": 5}, PolicyConfig(network="deep"))
+    assert "different functions" in export_problem(deep)
+    stereo_deep = build_policy(
+        (120, 160, 2), {"kind": "discrete", "n": 5}, PolicyConfig(network="deep"), ["STEREO_CAMERAS"]
+    )
+    assert export_problem(stereo_deep) is None
