@@ -40,6 +40,7 @@ from __future__ import annotations
 import io
 import json
 import tarfile
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -150,8 +151,6 @@ def training_params(runs: RunStore, run_id: str, prefix: str) -> bytes:
 
 def sim_files(runs: RunStore, run_id: str, checkpoint: str | int, prefix: str = "racer-model") -> dict[str, bytes]:
     """The deepracer-sim folder's files by relative path (module docstring)."""
-    import tempfile
-
     model, meta, actions = _load(runs, run_id, checkpoint)
     version, steps = int(meta["version"]), int(meta.get("env_steps") or 0)
     ckpt = checkpoint_name(version, steps)

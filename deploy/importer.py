@@ -35,6 +35,7 @@ from common.policy import acting_to_bytes, action_space_spec, build_policy, chec
 from common.sensors import observation_spec
 from deploy.deepracer_graph import (
     FRAME_SHAPE,
+    SCOPE,
     DeepRacerModelError,
     checkpoint_variables,
     export_problem,
@@ -162,6 +163,8 @@ def import_model(runs: RunStore, source: str, run_id: str, s3_endpoint: str | No
         value_loaded = load_simapp_weights(model, arrays, f"{source}: {weights_from}")
     if not value_loaded:
         notes.append("the value head starts fresh (network_0 differs from network_1, or the model has no value head)")
+    if model.action_kind == "continuous" and f"{SCOPE}/network_1/ppo_head_0/policy_log_std" not in arrays:
+        notes.append("the frozen graph has no policy_log_std: the Gaussian's spread starts at racer's initial one")
     for name, data in files.items():
         runs.write_file(run_id, name, data)
         # The copies the trainer keeps for deepracer-utils (trainer/process.py: _write_run_files).
