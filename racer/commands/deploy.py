@@ -36,7 +36,7 @@ def export(
         typer.Option(
             "--format",
             help="onnx (racer's car runtime), deepracer-car (the DeepRacer car's .tar.gz) or deepracer-sim (a model "
-            "folder for DRfC / DeepRacer on AWS). The deepracer formats need: pip install 'racer[deepracer]'.",
+            "folder for DRfC / DeepRacer on AWS). The deepracer formats need: pip install 'racer\\[deepracer]'.",
         ),
     ] = "onnx",
     upload: Annotated[
@@ -90,7 +90,7 @@ def import_model(
 ) -> None:
     """Import a DeepRacer model (car archive or simulator folder) as a new run's version 0, to evaluate it with
     racer eval or keep training it with racer train --pretrained (docs/deepracer-models.md). Needs: pip install
-    'racer[deepracer]'."""
+    'racer\\[deepracer]'."""
     from deploy.importer import import_model as read_model
     from model_store import RunStore, open_store
 
