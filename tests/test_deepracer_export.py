@@ -88,6 +88,28 @@ def frames() -> np.ndarray:
     return sim_frames(FRAMES + 1)
 
 
+def env_inputs(tmp: Path, sensors: list[str], n: int, seed: int = 0) -> dict[str, np.ndarray]:
+    """``n`` observations of racer's simulator with ``sensors`` (its stereo pair and LiDAR scans), by sensor name."""
+    from common.sensors import CAMERA_KEY, LIDAR_KEY
+
+    space = ActionSpace.model_validate_json(RacerEnv(track=DEFAULT_TRACK).actions.to_json())
+    path = tmp / "sensors.json"
+    path.write_text(space.model_copy(update={"sensor": sensors}).to_json())
+    env = RacerEnv(config=EnvConfig(track=DEFAULT_TRACK, action_space=str(path)))
+    spec = observation_spec(sensors, 1)
+    feeds: dict[str, list[np.ndarray]] = {s: [] for s in spec.sensors}
+    obs, _ = env.reset(seed=seed)
+    for i in range(n):
+        feeds[spec.camera].append(obs[CAMERA_KEY] if spec.lidar else obs)
+        if spec.lidar:
+            feeds[spec.lidar.name].append(obs[LIDAR_KEY])
+        obs, _, term, trunc, _ = env.step(i % 5)
+        if term or trunc:
+            obs, _ = env.reset()
+    env.close()
+    return {name: np.stack(values) for name, values in feeds.items()}
+
+
 def inputs_for(spec, frames: np.ndarray) -> dict[str, np.ndarray]:
     """The model's inputs by sensor: the frames (stereo: frame i as left, i + 1 as right) and LiDAR vectors."""
     n = len(frames) - 1
@@ -138,7 +160,8 @@ def export(tmp: Path, runs: RunStore, run_id: str, fmt: str, out: Path, *extra: 
 @pytest.mark.parametrize(
     "sensors", [["FRONT_FACING_CAMERA"], ["STEREO_CAMERAS", "LIDAR"]], ids=["front-shallow", "stereo+lidar"]
 )
-def test_car_archive_runs_in_tensorflow_and_openvino_as_racer_chooses(tmp_path, frames, sensors):
+def test_car_archive_runs_in_tensorflow_and_openvino_as_racer_chooses(tmp_path, sensors):
+    """On FRAMES observations rendered (and scanned) by racer's simulator with the model's sensors."""
     from deploy.deepracer_format import car_archive_problems
     from deploy.deepracer_graph import run_frozen
 
@@ -152,7 +175,8 @@ def test_car_archive_runs_in_tensorflow_and_openvino_as_racer_chooses(tmp_path, 
     pb = tmp_path / "car" / "agent" / "model.pb"
     metadata = json.loads((tmp_path / "car" / "model_metadata.json").read_text())
     model = policy(runs, "car")
-    feeds = inputs_for(model.spec, frames)
+    feeds = env_inputs(tmp_path, sensors, FRAMES)
+    assert feeds[model.spec.camera].shape == (FRAMES, 120, 160, model.spec.frame_channels)
     ours = racer_outputs(model, feeds)
     tf_out = run_frozen(pb.read_bytes(), feeds)
     ov_out = openvino_outputs(pb, metadata, feeds)
