@@ -280,7 +280,7 @@ def car_archive_problems(path: str | Path) -> list[str]:
     if not path.name.endswith(".tar.gz"):
         return [f"{path.name}: not a .tar.gz (webserver models.py model_file_upload)"]
     with tarfile.open(path, "r:gz") as tar:
-        members = {m.name.lstrip("./"): m for m in tar.getmembers() if m.isfile()}
+        members = {m.name.removeprefix("./"): m for m in tar.getmembers() if m.isfile()}
         pbs = [name for name in members if name.endswith(".pb")]
         if len(pbs) != 1:
             return [f"{path.name}: {len(pbs)} .pb files; the loader takes exactly one (transfer_models)"]
