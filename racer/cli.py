@@ -13,6 +13,7 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from typer.core import TyperGroup
 
 from common.errors import UserError, one_line
@@ -39,7 +40,8 @@ def _user_errors() -> tuple[type[BaseException], ...]:
 
 
 def _print_error(message: str) -> None:
-    Console(stderr=True).print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    # Escaped: a message is plain text (a path, or "pip install 'racer[deepracer]'"), not rich markup.
+    Console(stderr=True).print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
 
 
 class _UserErrorsInOneLine(TyperGroup):
@@ -82,6 +84,7 @@ app.command("status")(roles.status)
 app.command("eval")(evaluate.evaluate)
 app.command("plot")(evaluate.plot)
 app.command("export")(deploy.export)
+app.command("import")(deploy.import_model)
 app.command("car")(deploy.car)
 app.command("calibrate")(car_model.calibrate)
 app.command("limit")(car_model.limit)

@@ -1,4 +1,5 @@
-"""``racer export`` (a checkpoint's policy as ONNX, for a car) and ``racer car`` (the on-car runtime)."""
+"""``racer export`` (a checkpoint's policy as ONNX for racer's car runtime, or in DeepRacer's formats), ``racer import``
+(a DeepRacer model as a run) and ``racer car`` (the on-car runtime)."""
 
 from __future__ import annotations
 
@@ -12,29 +13,93 @@ from rich.console import Console
 from common.errors import OptionError
 from racer.commands.options import Endpoint, Store, console, json_option, write_json
 
+FORMATS = ("onnx", "deepracer-car", "deepracer-sim")
+"""``racer export --format`` values: racer's ONNX model, DeepRacer's car archive, DeepRacer's simulator folder."""
+
 
 def export(
     run_id: Annotated[str, typer.Option("--run-id", help="Run id.")],
     out: Annotated[
-        Path, typer.Option("-o", "--out", help="Where to write the model (model_metadata.json goes beside).")
+        Path,
+        typer.Option(
+            "-o",
+            "--out",
+            help="Where to write: onnx, the model file (model_metadata.json goes beside); deepracer-car, a .tar.gz; "
+            "deepracer-sim, a new folder.",
+        ),
     ],
     store: Store = ".",
     s3_endpoint: Endpoint = None,
     checkpoint: Annotated[str, typer.Option(help="best, latest or a version number.")] = "best",
-    fmt: Annotated[str, typer.Option("--format", help="Export format: onnx.")] = "onnx",
+    fmt: Annotated[
+        str,
+        typer.Option(
+            "--format",
+            help="onnx (racer's car runtime), deepracer-car (the DeepRacer car's .tar.gz) or deepracer-sim (a model "
+            "folder for DRfC / DeepRacer on AWS). The deepracer formats need: pip install 'racer\\[deepracer]'.",
+        ),
+    ] = "onnx",
+    upload: Annotated[
+        str | None,
+        typer.Option(help="deepracer-sim only: also upload the folder to s3://bucket/prefix as dr-upload-model does."),
+    ] = None,
     json_out: Annotated[str | None, json_option("what was exported")] = None,
 ) -> None:
-    """Export a checkpoint's policy for a car (ONNX), with the run's model_metadata.json beside it."""
-    from deploy.export import export_onnx
+    """Export a checkpoint's policy: ONNX for racer's car runtime, or DeepRacer's car archive or simulator folder
+    (docs/deepracer-models.md)."""
     from model_store import RunStore, open_store
 
+    if fmt not in FORMATS:
+        raise OptionError(f"--format {fmt!r} is not supported: use {', '.join(FORMATS)}")
+    if upload and fmt != "deepracer-sim":
+        raise OptionError(f"--upload applies to --format deepracer-sim, not {fmt}")
     if fmt != "onnx":
-        raise OptionError(f"--format {fmt!r} is not supported: use onnx")
+        from deploy.deepracer_graph import tensorflow
+
+        tensorflow(f"--format {fmt}")  # the missing extra is one line before anything is read
     runs = RunStore(open_store(store, s3_endpoint))
     if checkpoint == "best" and runs.pointer(run_id, "best") is None:
         checkpoint = "latest"  # a run without an evaluator has no best: its newest policy is the one to drive
-    result = export_onnx(runs, run_id, checkpoint, out)
-    console.print(f"exported run {run_id} v{result['version']} to {result['model']} (+ {result['model_metadata']})")
+    if fmt == "onnx":
+        from deploy.export import export_onnx
+
+        result = export_onnx(runs, run_id, checkpoint, out)
+        console.print(f"exported run {run_id} v{result['version']} to {result['model']} (+ {result['model_metadata']})")
+    elif fmt == "deepracer-car":
+        from deploy.deepracer_format import export_car
+
+        result = export_car(runs, run_id, checkpoint, out)
+        console.print(f"exported run {run_id} v{result['version']} for the DeepRacer car to {result['model']}")
+    else:
+        from deploy.deepracer_format import export_sim
+
+        result = export_sim(runs, run_id, checkpoint, out, upload, s3_endpoint)
+        where = f" and {upload}" if upload else ""
+        console.print(f"exported run {run_id} as a DeepRacer model folder to {out}{where}")
+    write_json(result, json_out)
+
+
+def import_model(
+    source: Annotated[
+        str, typer.Argument(help="A DeepRacer model: its folder, the car's .tar.gz or s3://bucket/prefix.")
+    ],
+    run_id: Annotated[str, typer.Option("--run-id", help="The new run to hold it.")],
+    store: Store = ".",
+    s3_endpoint: Endpoint = None,
+    json_out: Annotated[str | None, json_option("what was imported")] = None,
+) -> None:
+    """Import a DeepRacer model (car archive or simulator folder) as a new run's version 0, to evaluate it with
+    racer eval or keep training it with racer train --pretrained (docs/deepracer-models.md). Needs: pip install
+    'racer\\[deepracer]'."""
+    from deploy.importer import import_model as read_model
+    from model_store import RunStore, open_store
+
+    runs = RunStore(open_store(store, s3_endpoint))
+    result = read_model(runs, source, run_id, s3_endpoint)
+    for note in result["notes"]:
+        console.print(f"note: {note}", highlight=False)
+    weights, value = result["weights"], result["value_head"]
+    console.print(f"imported {source} as run {run_id} version 0 ({weights}; value head {value})")
     write_json(result, json_out)
 
 
