@@ -15,10 +15,15 @@ layers, each with ReLU; the scheme's batch-norm, dropout and tanh entries are no
 * ``shallow`` (DEEP_CONVOLUTIONAL_NETWORK_SHALLOW), front camera and stereo pair alike (``sensors/utils.py:
   get_front_camera_embedders``, ``get_stereo_camera_embedders``): conv 32 8/4 → 64 4/2 → 64 3/1, middleware dense
   512. On 120×160 frames the last conv gives 64×11×16 = 11264 features.
-* ``deep`` (DEEP_CONVOLUTIONAL_NETWORK): front camera conv 32 5/2 → 32 3/1 → 64 3/2 → 64 3/1 (64×25×35) → dense 64;
-  stereo conv 32 3/1 → 64 3/2 → 64 3/1 → 128 3/2 → 128 3/1 (128×25×35 = 112000); middleware dense 512.
+* ``deep`` (DEEP_CONVOLUTIONAL_NETWORK): front camera conv 32 5/2 → 32 3/1 → 64 3/2 → 64 3/1 (64×25×35) → dense 64
+  on each pixel (25×35×64 = 56000 features); stereo conv 32 3/1 → 64 3/2 → 64 3/1 → 128 3/2 → 128 3/1
+  (128×25×35 = 112000); middleware dense 512.
 * ``deep_deep`` (DEEP_CONVOLUTIONAL_NETWORK_DEEP): front camera conv 32 8/4 → 32 4/2 → 64 4/2 → 64 3/1 (64×3×6) →
-  dense 512 → 512; stereo as ``deep``; middleware dense 256 → 128 (``VGG_MIDDLEWARE``).
+  dense 512 → 512 on each pixel (3×6×512 = 9216 features); stereo as ``deep``; middleware dense 256 → 128
+  (``VGG_MIDDLEWARE``).
+* A camera embedder's dense layers act on each pixel of the last conv's output: rl_coach builds them as Keras
+  ``Dense`` on the 4-D (B, H, W, C) tensor, which maps the last axis, and flattens only after its last layer
+  (``embedders/embedder.py: InputEmbedder._build_module``); racer's :class:`PixelDense`.
 * LIDAR / SECTOR_LIDAR (``sensors/utils.py: get_lidar_embedders``, the same for every ``neural_network``): dense
   256 → dense 256.
 * The embeddings are concatenated in the sorted order of the sensor names (rl_coach
@@ -89,7 +94,7 @@ class Topology:
     convs: tuple[tuple[int, int, int], ...]
     """(out_channels, kernel, stride) of each conv layer."""
     camera_dense: tuple[int, ...] = ()
-    """The camera embedder's dense layers after the convs, units."""
+    """The camera embedder's dense layers after the convs, units, each on every pixel (:class:`PixelDense`)."""
     middleware: tuple[int, ...] = (HIDDEN,)
     """The middleware's dense layers after the merger, units; the last is the heads' input."""
 
@@ -148,11 +153,19 @@ def _conv_trunk(in_channels: int, cfg: PolicyConfig, camera: str = FRONT_FACING_
     return layers
 
 
-def _dense(in_features: int, widths: Sequence[int]) -> list[nn.Module]:
-    """Dense layers of ``widths``, each with a ReLU."""
+class PixelDense(nn.Linear):
+    """A dense layer on each pixel's channels of an (N, C, H, W) map, giving (N, units, H, W): rl_coach's Keras
+    ``Dense`` on a camera embedder's 4-D conv output (module docstring). Its weight is a ``Linear``'s (units, C)."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return super().forward(x.permute(0, 2, 3, 1)).permute(0, 3, 1, 2)
+
+
+def _dense(in_features: int, widths: Sequence[int], layer: type[nn.Linear] = nn.Linear) -> list[nn.Module]:
+    """Dense layers (``layer``) of ``widths``, each with a ReLU."""
     layers: list[nn.Module] = []
     for width in widths:
-        layers += [_init(nn.Linear(in_features, width), math.sqrt(2)), nn.ReLU()]
+        layers += [_init(layer(in_features, width), math.sqrt(2)), nn.ReLU()]
         in_features = width
     return layers
 
@@ -197,8 +210,13 @@ class ActorCritic(nn.Module):
         # (C, H, W) order: a ReLU on its contiguous output keeps the ReLU's backward on one layout, where before the
         # Flatten it read the channels-last output against the dense layer's (C, H, W) gradient, a strided pass of
         # 2.5 ms in a 76 ms bf16 minibatch step (one core; docs/speed.md).
-        camera_part = [*convs[:-1], nn.Flatten(), convs[-1], *_dense(flat, topology.camera_dense)]
-        camera_width = topology.camera_dense[-1] if topology.camera_dense else flat
+        if topology.camera_dense:
+            channels, height, width = self.conv_out_shape
+            camera_part = [*convs, *_dense(channels, topology.camera_dense, PixelDense), nn.Flatten()]
+            camera_width = topology.camera_dense[-1] * height * width
+        else:
+            camera_part = [*convs[:-1], nn.Flatten(), convs[-1]]
+            camera_width = flat
         self.hidden = topology.middleware[-1]
         """Width of the heads' input, units."""
         if not self.lidar_size:

@@ -24,8 +24,10 @@ this module builds with ``tf.compat.v1`` (graph mode, reference variables, no Ke
   layers), each followed by a ``BatchnormActivationDropout`` entry (``InputEmbedder.__init__`` inserts one after
   every layer), named ``<Class>_<index>`` (``_build_module``), so convs are ``Conv2d_0``, ``Conv2d_2``, ``Conv2d_4``
   and activations ``BatchnormActivationDropout_1_activation`` (ReLU, ``layers.py: batchnorm_activation_dropout``),
-  then a Flatten of the NHWC tensor. Convs are Keras ``Conv2D`` (``layers.py: Conv2d``, channels last, valid
-  padding): kernel (kh, kw, in, out), bias. Dense layers are Keras ``Dense``: kernel (in, out), bias.
+  then the camera's dense layers (``deep``, ``deep_deep``: ``Dense_8``, ...) as Keras ``Dense`` on the 4-D NHWC
+  tensor (the last axis: every pixel's channels), then a Flatten of the NHWC tensor. Convs are Keras ``Conv2D``
+  (``layers.py: Conv2d``, channels last, valid padding): kernel (kh, kw, in, out), bias. Dense layers are Keras
+  ``Dense``: kernel (in, out), bias.
 * Merger and middleware: embeddings in the sorted order of the sensor names, ``tf.concat(..., name="merger")``, then
   ``middleware_fc_embedder`` (``middlewares/fc_middleware.py``) with ``Dense_0`` (and ``Dense_2``), ReLU.
 * Head input: ``(1 - r) * stop_gradient(x) + r * x`` with ``r`` the variable ``gradients_from_head_0-0_rescalers``
@@ -48,10 +50,7 @@ conv's output in (C, H, W) order and TensorFlow's Flatten of NHWC in (H, W, C) o
 layer after the flatten are permuted (``_flat_rows_to_tf``). racer's BatchNorm2d (off in DeepRacer's networks) is
 folded into the conv before it; Dropout is the identity when acting.
 
-Not exportable (``export_problem`` says why in one line): frame stacks (the simapp's camera input is one frame),
-and the front camera's ``deep`` and ``deep_deep`` networks, whose camera dense layers the simapp applies to the last
-axis of the 4-D conv output (Keras ``Dense`` on a (B, H, W, C) tensor, before the embedder's Flatten) while racer
-flattens first: different functions, not a change of layout.
+Not exportable (``export_problem`` says why in one line): frame stacks (the simapp's camera input is one frame).
 """
 
 from __future__ import annotations
@@ -67,7 +66,7 @@ import torch
 from torch import nn
 
 from common.errors import UserError
-from common.policy import LIDAR_EMBEDDER, TOPOLOGIES, ActorCritic
+from common.policy import LIDAR_EMBEDDER, TOPOLOGIES, ActorCritic, PixelDense
 
 SCOPE = "main_level/agent/main/online"
 """The agent's online network scope (rl_coach ``main_level/<agent>/main/online``, agent name ``agent``)."""
@@ -113,6 +112,8 @@ class Layout:
     camera_channels: int
     convs: tuple[tuple[int, int, int], ...]
     """(filters, kernel, stride) of each conv."""
+    camera_dense: tuple[int, ...]
+    """Units of the camera's dense layers after the convs, each on every pixel."""
     lidar: str | None
     lidar_size: int
     lidar_dense: tuple[int, ...]
@@ -133,6 +134,11 @@ class Layout:
             h, w = (h - k) // s + 1, (w - k) // s + 1
         return h, w, self.convs[-1][0]
 
+    def embed_out(self) -> tuple[int, int, int]:
+        """(height, width, channels) of the camera embedder's output before its Flatten."""
+        h, w, c = self.conv_out()
+        return h, w, self.camera_dense[-1] if self.camera_dense else c
+
 
 def export_problem(model: ActorCritic) -> str | None:
     """Why ``model`` cannot be written as the simapp's graph (one line), or None."""
@@ -143,12 +149,6 @@ def export_problem(model: ActorCritic) -> str | None:
         return (
             f"it stacks {spec.stack_size} frames (stack_size); DeepRacer's networks take one camera frame "
             "(simapp ObservationStackingFilter(1))"
-        )
-    if TOPOLOGIES[spec.camera, model.cfg.network].camera_dense:
-        return (
-            f"racer's {model.cfg.network} network for {spec.camera} flattens before its camera dense layers, while "
-            "the simapp applies them to each pixel of the conv output (Keras Dense on a 4-D tensor): "
-            "different functions"
         )
     return None
 
@@ -164,6 +164,7 @@ def layout_of(model: ActorCritic) -> Layout:
         camera=spec.camera,
         camera_channels=spec.frame_channels,
         convs=topology.convs,
+        camera_dense=topology.camera_dense,
         lidar=spec.lidar.name if spec.lidar else None,
         lidar_size=spec.lidar_size,
         lidar_dense=LIDAR_EMBEDDER if spec.lidar else (),
@@ -181,6 +182,7 @@ class _Parts:
     """racer's layers grouped as the simapp's: convs (with any BatchNorm after each), dense layers per part."""
 
     convs: list[tuple[nn.Conv2d, nn.BatchNorm2d | None]]
+    camera_dense: list[PixelDense]
     lidar: list[nn.Linear]
     middleware: list[nn.Linear]
 
@@ -191,17 +193,20 @@ def _parts(model: ActorCritic) -> _Parts:
     camera = model.trunk if model.trunk is not None else model.camera_embedder
     convs: list[tuple[nn.Conv2d, nn.BatchNorm2d | None]] = []
     linears: list[nn.Linear] = []
+    pixel: list[PixelDense] = []
     for module in camera:
-        if isinstance(module, nn.Conv2d):
+        if isinstance(module, PixelDense):
+            pixel.append(module)
+        elif isinstance(module, nn.Conv2d):
             convs.append((module, None))
         elif isinstance(module, nn.BatchNorm2d):
             convs[-1] = (convs[-1][0], module)
         elif isinstance(module, nn.Linear):
             linears.append(module)
     if model.trunk is not None:
-        return _Parts(convs, [], linears)
+        return _Parts(convs, pixel, [], linears)
     lidar = [m for m in model.lidar_embedder if isinstance(m, nn.Linear)]
-    return _Parts(convs, lidar, [m for m in model.middleware if isinstance(m, nn.Linear)])
+    return _Parts(convs, pixel, lidar, [m for m in model.middleware if isinstance(m, nn.Linear)])
 
 
 def _np(t: torch.Tensor) -> np.ndarray:
@@ -232,7 +237,7 @@ def _flat_rows_to_torch(rows: np.ndarray, chw: tuple[int, int, int]) -> np.ndarr
 
 def _middleware_in(layout: Layout) -> list[tuple[str, int]]:
     """The merger's blocks, in order: (sensor, width) (the camera's width is its flat conv output)."""
-    h, w, c = layout.conv_out()
+    h, w, c = layout.embed_out()
     widths = {layout.camera: h * w * c}
     if layout.lidar:
         widths[layout.lidar] = layout.lidar_dense[-1]
@@ -241,7 +246,7 @@ def _middleware_in(layout: Layout) -> list[tuple[str, int]]:
 
 def _first_middleware_kernel(weight: np.ndarray, layout: Layout, to_tf: bool) -> np.ndarray:
     """The middleware's first kernel (in, out) with the camera block's rows permuted between the flatten orders."""
-    h, w, c = layout.conv_out()
+    h, w, c = layout.embed_out()
     out, start = weight.copy(), 0
     for name, width in _middleware_in(layout):
         if name == layout.camera:
@@ -259,6 +264,12 @@ def _first_middleware_kernel(weight: np.ndarray, layout: Layout, to_tf: bool) ->
 def conv_names(layout: Layout) -> list[str]:
     """Scope of each camera conv inside the camera's embedder: ``Conv2d_0``, ``Conv2d_2``, ..."""
     return [f"Conv2d_{2 * i}" for i in range(len(layout.convs))]
+
+
+def camera_dense_names(layout: Layout) -> list[str]:
+    """Scope of each camera dense layer, numbered on after the convs and their activations: ``Dense_8``, ..."""
+    first = 2 * len(layout.convs)
+    return [f"Dense_{first + 2 * i}" for i in range(len(layout.camera_dense))]
 
 
 def dense_names(n: int) -> list[str]:
@@ -282,6 +293,9 @@ def simapp_weights(model: ActorCritic) -> dict[str, np.ndarray]:
     trunk: dict[str, np.ndarray] = {}
     for name, (conv, bn) in zip(conv_names(layout), parts.convs, strict=True):
         trunk[f"{layout.camera}/{name}/kernel"], trunk[f"{layout.camera}/{name}/bias"] = _folded(conv, bn)
+    for name, linear in zip(camera_dense_names(layout), parts.camera_dense, strict=True):
+        trunk[f"{layout.camera}/{name}/kernel"] = _np(linear.weight).T
+        trunk[f"{layout.camera}/{name}/bias"] = _np(linear.bias)
     if layout.lidar:
         for name, linear in zip(dense_names(len(parts.lidar)), parts.lidar, strict=True):
             trunk[f"{layout.lidar}/{name}/kernel"] = _np(linear.weight).T
@@ -341,17 +355,18 @@ def _trunk_from(arrays: Mapping[str, np.ndarray], net: str, model: ActorCritic, 
     scope = f"{SCOPE}/{net}"
     convs = _scoped(arrays, f"{scope}/{layout.camera}", "Conv2d")
     denses = _scoped(arrays, f"{scope}/{layout.camera}", "Dense")
-    if len(convs) != len(parts.convs) or denses:
+    if len(convs) != len(parts.convs) or len(denses) != len(parts.camera_dense):
         raise DeepRacerModelError(
             f"{source}: {layout.camera} has {len(convs)} convs and {len(denses)} dense layers; racer's network has "
-            f"{len(parts.convs)} convs and none"
+            f"{len(parts.convs)} convs and {len(parts.camera_dense)}"
         )
     for name, (conv, _) in zip(convs, parts.convs, strict=True):
         o, i, kh, kw = conv.weight.shape
         base = f"{scope}/{layout.camera}/{name}"
         _set(conv.weight, _take(arrays, f"{base}/kernel", (kh, kw, i, o), source).transpose(3, 2, 0, 1))
         _set(conv.bias, _take(arrays, f"{base}/bias", (o,), source))
-    groups = [(f"{scope}/middleware_fc_embedder", parts.middleware)]
+    groups = [(f"{scope}/{layout.camera}", parts.camera_dense)] if parts.camera_dense else []
+    groups += [(f"{scope}/middleware_fc_embedder", parts.middleware)]
     if layout.lidar:
         groups.append((f"{scope}/{layout.lidar}", parts.lidar))
     for group, linears in groups:
@@ -422,7 +437,9 @@ def _dense(tf: Any, x: Any, name: str, units: int, relu: bool, activation_name: 
     with tf.compat.v1.variable_scope(name):
         kernel = _variable(tf, "kernel", (int(x.shape[-1]), units))
         bias = _variable(tf, "bias", (units,))
-        y = tf.nn.bias_add(tf.linalg.matmul(x, kernel, name="MatMul"), bias, name="BiasAdd")
+        # Keras Dense on a 4-D tensor maps its last axis (a camera's dense layers: every pixel's channels).
+        product = tf.linalg.matmul(x, kernel, name="MatMul") if x.shape.rank == 2 else tf.tensordot(x, kernel, 1)
+        y = tf.nn.bias_add(product, bias, name="BiasAdd")
     return tf.nn.relu(y, name=activation_name or f"{name}_activation") if relu else y
 
 
@@ -439,6 +456,9 @@ def _embedder(tf: Any, x: Any, layout: Layout, sensor: str) -> Any:
                 x = tf.nn.conv2d(x, k, [1, stride, stride, 1], "VALID", name="Conv2D")
                 x = tf.nn.bias_add(x, b, name="BiasAdd")
             x = tf.nn.relu(x, name=f"BatchnormActivationDropout_{2 * i + 1}_activation")
+        for units, name in zip(layout.camera_dense, camera_dense_names(layout), strict=True):
+            activation = f"BatchnormActivationDropout_{int(name.split('_')[1]) + 1}_activation"
+            x = _dense(tf, x, name, units, True, activation)
     else:
         for i, (units, name) in enumerate(zip(layout.lidar_dense, dense_names(len(layout.lidar_dense)), strict=True)):
             x = _dense(tf, x, name, units, True, f"BatchnormActivationDropout_{2 * i + 1}_activation")

@@ -432,9 +432,45 @@ def test_batch_norm_is_folded_and_what_deepracer_cannot_hold_is_refused(frames):
     assert np.abs(theirs - ours).max() < 1e-4 and (theirs.argmax(-1) == ours.argmax(-1)).all()
     stacked = build_policy((120, 160, 2), {"kind": "discrete", "n": 5}, PolicyConfig(stack_size=2))
     assert "stack_size" in export_problem(stacked)
-    deep = build_policy((120, 160, 1), {"kind": "discrete", "n": 5}, PolicyConfig(network="deep"))
-    assert "different functions" in export_problem(deep)
     stereo_deep = build_policy(
         (120, 160, 2), {"kind": "discrete", "n": 5}, PolicyConfig(network="deep"), ["STEREO_CAMERAS"]
     )
     assert export_problem(stereo_deep) is None
+
+
+@needs_tf
+@pytest.mark.parametrize("network", ["deep", "deep_deep"])
+def test_front_camera_deep_networks_convert_with_dense_on_each_pixel(frames, network):
+    """The simapp's DEEP_CONVOLUTIONAL_NETWORK(_DEEP) front-camera embedders end in dense layers on the 4-D conv output
+    (rl_coach's Keras Dense on each pixel, flattened after): the frozen graph matches racer's network, and its
+    weights read back into a fresh network give the same outputs."""
+    from common.config import PolicyConfig
+    from deploy.deepracer_graph import (
+        SimappSession,
+        export_problem,
+        layout_of,
+        load_simapp_weights,
+        run_frozen,
+        simapp_weights,
+    )
+
+    torch.manual_seed(3)
+    cfg = PolicyConfig(network=network)
+    model = build_policy((120, 160, 1), {"kind": "discrete", "n": 5}, cfg).eval()
+    with torch.no_grad():
+        model.policy_head.weight.mul_(200.0)
+    assert export_problem(model) is None
+    weights = simapp_weights(model)
+    first_dense = {"deep": "Dense_8", "deep_deep": "Dense_8"}[network]
+    assert f"main_level/agent/main/online/network_1/FRONT_FACING_CAMERA/{first_dense}/kernel" in weights
+    session = SimappSession(layout_of(model), weights)
+    feeds = {"FRONT_FACING_CAMERA": frames[:200]}
+    theirs = run_frozen(session.frozen(), feeds)
+    session.close()
+    ours = racer_outputs(model, feeds)
+    assert np.abs(theirs - ours).max() < 1e-4 and (theirs.argmax(-1) == ours.argmax(-1)).all()
+    assert ours.std(0).max() > 1e-3  # the frames move the probabilities: the comparison can fail
+    fresh = build_policy((120, 160, 1), {"kind": "discrete", "n": 5}, cfg).eval()
+    assert load_simapp_weights(fresh, weights, "test")
+    again = racer_outputs(fresh, feeds)
+    assert np.abs(again - ours).max() < 1e-5

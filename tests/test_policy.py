@@ -99,13 +99,14 @@ def test_the_deep_networks_are_the_simapps() -> None:
     assert got == [(2, 32, 5, 2), (32, 32, 3, 1), (32, 64, 3, 2), (64, 64, 3, 1)]
     assert model.conv_out_shape == (64, 25, 35)
     dense = [(m.in_features, m.out_features) for m in model.trunk if isinstance(m, nn.Linear)]
-    assert dense == [(64 * 25 * 35, 64), (64, 512)] and model.hidden == 512
+    # The camera's dense 64 acts on each pixel (rl_coach's Dense on the 4-D conv output), flattened after it.
+    assert dense == [(64, 64), (25 * 35 * 64, 512)] and model.hidden == 512
     deeper = _full_size("deep_deep", "discrete", 1)
     convs = [m for m in deeper.trunk if isinstance(m, nn.Conv2d)]
     got = [(c.in_channels, c.out_channels, c.kernel_size[0], c.stride[0]) for c in convs]
     assert got == [(1, 32, 8, 4), (32, 32, 4, 2), (32, 64, 4, 2), (64, 64, 3, 1)]
     dense = [(m.in_features, m.out_features) for m in deeper.trunk if isinstance(m, nn.Linear)]
-    assert dense == [(64 * 3 * 6, 512), (512, 512), (512, 256), (256, 128)]
+    assert dense == [(64, 512), (512, 512), (3 * 6 * 512, 256), (256, 128)]
     assert deeper.policy_head.in_features == deeper.value_head.in_features == deeper.hidden == 128
 
 
@@ -479,3 +480,20 @@ def test_the_acting_copy_is_half_the_checkpoint_and_weights_only(tmp_path: Path)
     with pytest.raises(CheckpointError):
         acting_from_bytes(buf.getvalue())
     assert not target.exists()
+
+
+def test_pixel_dense_maps_each_pixels_channels() -> None:
+    """rl_coach's Keras Dense on a (B, H, W, C) conv output: the same (units, C) matrix on every pixel."""
+    from common.policy import PixelDense
+
+    torch.manual_seed(0)
+    layer = PixelDense(3, 2)
+    x = torch.randn(2, 3, 4, 5)
+    expected = torch.einsum("nchw,oc->nohw", x, layer.weight) + layer.bias[None, :, None, None]
+    y = layer(x)
+    assert y.shape == (2, 2, 4, 5) and torch.allclose(y, expected, atol=1e-6)
+    # One pixel's output depends on that pixel's channels only.
+    x2 = x.clone()
+    x2[:, :, 0, 0] += 1.0
+    changed = (layer(x2) - y).abs().sum(dim=1) > 0
+    assert changed[:, 0, 0].all() and changed.sum() == 2

@@ -240,10 +240,10 @@ STEREO_DEEP_CONVS = (  # conv 32 3/1, 64 3/2, 64 3/1, 128 3/2, 128 3/1 → 118×
 )  # 608 + 18496 + 36928 + 73856 + 147584 = 277472 → 128 × 25 × 35 = 112000 features
 FRONT_DEEP_CONVS = (  # DEEP_CONVOLUTIONAL_NETWORK: conv 32 5/2, 32 3/1, 64 3/2, 64 3/1 → 58×78, 56×76, 27×37, 25×35
     _conv(1, 32, 5) + _conv(32, 32, 3) + _conv(32, 64, 3) + _conv(64, 64, 3)
-)  # 832 + 9248 + 18496 + 36928 = 65504 → 64 × 25 × 35 = 56000 features → dense 64
+)  # 832 + 9248 + 18496 + 36928 = 65504 → 64 × 25 × 35 → dense 64 on each pixel → 25 × 35 × 64 = 56000 features
 FRONT_DEEP_DEEP_CONVS = (  # …_DEEP: conv 32 8/4, 32 4/2, 64 4/2, 64 3/1 → 29×39, 13×18, 5×8, 3×6
     _conv(1, 32, 8) + _conv(32, 32, 4) + _conv(32, 64, 4) + _conv(64, 64, 3)
-)  # 2080 + 16416 + 32832 + 36928 = 88256 → 64 × 3 × 6 = 1152 features → dense 512 → 512
+)  # 2080 + 16416 + 32832 + 36928 = 88256 → 64 × 3 × 6 → dense 512 → 512 on each pixel → 3 × 6 × 512 = 9216
 VGG = (256, 128)
 FEATURES = {  # (camera, racer network) → (conv parameters, flattened features, camera dense widths, middleware widths)
     (FRONT_FACING_CAMERA, "shallow"): (SHALLOW_CONVS[1], 64 * 11 * 16, (), (512,)),
@@ -276,7 +276,12 @@ def test_every_allowed_list_builds_with_every_deepracer_network(sensors, neural_
     with mock.patch.object(nn.init, "orthogonal_", lambda tensor, gain=1.0: tensor):  # shapes do not need the QR
         model = _model(sensors, network=network, frame=(120, 160))
     convs, features, camera_dense, middleware = FEATURES[camera, network]
-    dense, camera_width = _chain(features, camera_dense)
+    if camera_dense:  # rl_coach's Dense on the 4-D conv output: each pixel's channels in, flattened after
+        channels, height, width = model.conv_out_shape
+        dense, last = _chain(channels, camera_dense)
+        camera_width = height * width * last
+    else:
+        dense, camera_width = _chain(features, camera_dense)
     merged = camera_width + (LIDAR_EMBEDDER[-1] if lidar else 0)  # the concatenation
     top, hidden = _chain(merged, middleware)
     heads = _dense(hidden, 1) + _dense(hidden, 10)  # value, 10 logits
