@@ -178,3 +178,48 @@ def test_cut_figures_wants_the_policy_current_at_the_heal_not_the_trainers_lates
     assert f["recovery_s"] == pytest.approx(2.0)
     assert f["current_policy_s"] == pytest.approx(6.0)
     assert cut_figures(rows[:3], "w1", cut=1.0, heal=6.0)["current_policy_s"] is None
+
+
+def test_a_sample_reads_the_run_through_the_bus(redis_url, run_id):
+    """The sampler takes the trainer's status, the policy, the heartbeats and the stream's counts from the bus (the
+    one owner of the key names); a missing stream is null, not zero."""
+    import redis as redis_py
+
+    from common.bus import Bus
+    from common.protocol import Heartbeat, PolicyVersion, encode_segment
+    from deploy.hosts_probe import snapshot
+    from tests.test_protocol import make_segment
+
+    bus = Bus(redis_py.Redis.from_url(redis_url), run_id)
+    assert snapshot(bus, [])["stream"] is None
+    bus.set_trainer_status({"time": 1.0, "segments_by_worker": {"w0": 2}})
+    bus.publish_policy(PolicyVersion(version=4, checkpoint_key="k", created=0.0))
+    beat = Heartbeat(worker_id="w0", pid=1, host="h", policy_version=4, env_steps=64, segments=2, time=1.0)
+    bus.push_segments([encode_segment(make_segment(run_id))] * 2, beat, maxlen=100, heartbeat_ttl_s=5)
+    row = snapshot(bus, ["lo"])
+    assert row["trainer"]["segments_by_worker"] == {"w0": 2} and row["policy"] == 4
+    assert row["workers"] == {"w0": {"segments": 2, "env_steps": 64, "policy_version": 4, "time": 1.0}}
+    assert row["stream"] == {"length": 2, "added": 2}
+
+
+def test_hosts_probe_spells_no_redis_key():
+    source = (ROOT / "deploy" / "hosts_probe.py").read_text()
+    assert "racer:" not in source and not re.search(r"heartbeat:|xinfo|scan_iter|from_url", source)
+
+
+def test_the_segment_figures_come_from_a_sample_that_read_the_stream():
+    """A last sample without the stream (or without the trainer's status) does not turn the count of segments added
+    into 0: accounting reads the last sample that had both."""
+    from deploy.hosts_probe import accounting, counted, stream_gaps
+
+    trainer = {"segments_by_worker": {"w0": 50, "w1": 7}, "dropped": {"stale": 15, "bad_heartbeat": 2}}
+    rows = [
+        {"t": 0.0, "trainer": None, "stream": None},
+        {"t": 1.0, "trainer": trainer, "stream": {"length": 3, "added": 72}},
+        {"t": 2.0, "trainer": trainer, "stream": None},
+        {"t": 3.0, "trainer": None, "stream": {"length": 0, "added": 72}},
+    ]
+    assert counted(rows)["t"] == 1.0
+    assert accounting(counted(rows)) == (57, 15, 72)
+    assert stream_gaps(rows) == 1
+    assert counted(rows[:1]) is None
