@@ -1,10 +1,11 @@
-"""Workers on other hosts over a bad network: ``deploy/check-hosts.sh`` run for real, as an operator would run it.
+"""Workers on other hosts over a bad network: ``deploy/cluster/check-hosts.sh`` run for real, as an operator would run
+it.
 
 The script builds three Linux network namespaces (a server host with redis-server, moto's S3 server and the trainer;
 two worker hosts), shapes the worker links (tc tbf 20 Mbit/s, 1 % loss with iptables, 50 ± 10 ms through
-``deploy/delay_proxy.py``), cuts one worker host off for 20 s and heals it, and checks that training went on, that the
-cut worker came back and that every segment was counted once. It needs root (namespaces, tc, iptables) and is skipped
-otherwise, with the reason.
+``deploy/cluster/delay_proxy.py``), cuts one worker host off for 20 s and heals it, and checks that training went on,
+that the cut worker came back and that every segment was counted once. It needs root (namespaces, tc, iptables) and
+is skipped otherwise, with the reason.
 
 It is slow on purpose (about 3 minutes: real processes, two 30 s measurement windows, a 20 s cut), and stays in the
 suite: it is the only test of racer across real network links. The delaying proxy also has a quick test of its own
@@ -27,8 +28,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "deploy" / "check-hosts.sh"
-PROXY = ROOT / "deploy" / "delay_proxy.py"
+SCRIPT = ROOT / "deploy" / "cluster" / "check-hosts.sh"
+PROXY = ROOT / "deploy" / "cluster" / "delay_proxy.py"
 
 
 def _cannot_run_hosts() -> str | None:
@@ -165,7 +166,7 @@ def _sample(t: float, trainer_version: int, worker_version: int, segments: int) 
 def test_cut_figures_wants_the_policy_current_at_the_heal_not_the_trainers_latest():
     """A worker that caught up with the version published before the heal has recovered, even if the trainer has
     published again since (with a 23 MB checkpoint on a shaped link it may stay one behind for minutes)."""
-    from deploy.hosts_probe import cut_figures
+    from deploy.cluster.hosts_probe import cut_figures
 
     rows = [
         _sample(0.0, 3, 3, 10),  # cut at t=1
@@ -187,7 +188,7 @@ def test_a_sample_reads_the_run_through_the_bus(redis_url, run_id):
 
     from common.bus import Bus
     from common.protocol import Heartbeat, PolicyVersion, encode_segment
-    from deploy.hosts_probe import snapshot
+    from deploy.cluster.hosts_probe import snapshot
     from tests.test_protocol import make_segment
 
     bus = Bus(redis_py.Redis.from_url(redis_url), run_id)
@@ -203,14 +204,14 @@ def test_a_sample_reads_the_run_through_the_bus(redis_url, run_id):
 
 
 def test_hosts_probe_spells_no_redis_key():
-    source = (ROOT / "deploy" / "hosts_probe.py").read_text()
+    source = (ROOT / "deploy" / "cluster" / "hosts_probe.py").read_text()
     assert "racer:" not in source and not re.search(r"heartbeat:|xinfo|scan_iter|from_url", source)
 
 
 def test_the_segment_figures_come_from_a_sample_that_read_the_stream():
     """A last sample without the stream (or without the trainer's status) does not turn the count of segments added
     into 0: accounting reads the last sample that had both."""
-    from deploy.hosts_probe import accounting, counted, stream_gaps
+    from deploy.cluster.hosts_probe import accounting, counted, stream_gaps
 
     trainer = {"segments_by_worker": {"w0": 50, "w1": 7}, "dropped": {"stale": 15, "bad_heartbeat": 2}}
     rows = [

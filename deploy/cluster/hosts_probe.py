@@ -1,4 +1,5 @@
-"""Measurements for ``deploy/check-hosts.sh``: sample a run's Redis and the worker links, wait for states, report.
+"""Measurements for ``deploy/cluster/check-hosts.sh``: sample a run's Redis and the worker links, wait for states,
+report.
 
 ``sample`` writes one JSON line every ``--every`` seconds until stopped: the trainer's status, the published policy,
 every live worker's heartbeat, the segment stream (length, entries ever added; null while the stream does not
