@@ -99,11 +99,11 @@ def test_bench_env_with_sensors_and_a_race_adds_them_and_their_parts(tmp_path):
 
 def test_bench_env_reports_none_for_the_parts_an_env_does_not_have():
     from common.config import EnvConfig
-    from sim.bench import race_config
+    from racer.bench.env import race_config
 
     # A child process: bench_env pins its process to one core.
     code = (
-        "import json, sys; from common.config import EnvConfig; from sim.bench import bench_env, race_config; "
+        "import json, sys; from common.config import EnvConfig; from racer.bench.env import bench_env, race_config; "
         "r = bench_env(EnvConfig(), steps=20, repeats=1, race=race_config('HEAD_TO_BOT', 0)); "
         "sys.stdout.write(json.dumps(r))"
     )
