@@ -36,9 +36,9 @@ def _cannot_run_hosts() -> str | None:
     """Why the namespace check cannot run here, or None."""
     if os.geteuid() != 0:
         return "needs root: it creates network namespaces, veth pairs, tc qdiscs and iptables rules"
-    for tool in ("ip", "tc", "iptables"):
+    for tool in ("ip", "tc", "iptables", "chrt"):
         if shutil.which(tool) is None:
-            return f"needs {tool} (iproute2 for ip and tc, the iptables package for iptables)"
+            return f"needs {tool} (iproute2 for ip and tc, the iptables package for iptables, util-linux for chrt)"
     if subprocess.run(["ip", "netns", "list"], capture_output=True).returncode != 0:
         return "`ip netns` does not work here"
     return None
@@ -224,3 +224,15 @@ def test_the_segment_figures_come_from_a_sample_that_read_the_stream():
     assert accounting(counted(rows)) == (57, 15, 72)
     assert stream_gaps(rows) == 1
     assert counted(rows[:1]) is None
+
+
+def test_the_report_says_what_the_cut_worker_was_doing_when_cut():
+    from deploy.cluster.hosts_probe import cut_during
+
+    line = (
+        "2026-11-29 08:03:56,038 racer.worker WARNING Redis at redis://:***@127.0.0.1:6379/0 unreachable while "
+        "trying to push segments (Connection closed by server.); retrying with backoff"
+    )
+    assert cut_during(line) == "push segments"
+    assert cut_during(line.replace("push segments", "poll the policy")) == "poll the policy"
+    assert cut_during("unreachable; retrying") is None

@@ -61,7 +61,7 @@ while [[ $# -gt 0 ]]; do
 done
 [[ $CUT_MODE == link || $CUT_MODE == drop ]] || { echo "--cut is link or drop" >&2; exit 2; }
 [[ $(id -u) == 0 ]] || { echo "check-hosts.sh needs root (network namespaces, tc, iptables)" >&2; exit 2; }
-for tool in ip tc iptables timeout; do
+for tool in ip tc iptables timeout chrt; do
   command -v $tool >/dev/null || { echo "check-hosts.sh needs $tool" >&2; exit 2; }
 done
 [[ -x $PY ]] || { echo "no python at $PY (set PYTHON)" >&2; exit 2; }
@@ -298,13 +298,16 @@ event shaped_end
 CUT_NS=${NSW[$CUT_WORKER]}
 # Cut it while it sends a segment (a burst on its link), from the process that sees the burst, so that the push is
 # left half sent: the worst moment for losing or doubling a segment; the worker's Redis client then times out (10 s).
+# The rest of the segment takes ~10 ms on the link, so the watcher and the cut run at a real-time priority: on a busy
+# machine a normal process was scheduled too late, the push had been answered, the cut caught the worker polling the
+# policy, and after the heal it downloaded the newer policy (~12 MB on the shaped link) before it pushed again.
 if [[ $CUT_MODE == link ]]; then
   cut_cmd=(ip -n "$CUT_NS" link set eth0 down)
 else
   cut_cmd=(sh -c "ip netns exec $CUT_NS iptables -I INPUT 1 -i eth0 -j DROP &&
     ip netns exec $SRV iptables -I INPUT 1 -s $NET.$((CUT_WORKER + 2)) -j DROP")
 fi
-in_ns "$SRV" "$PY" "$ROOT/deploy/cluster/hosts_probe.py" wait-upload --iface "p$CUT_WORKER" --timeout 60 \
+in_ns "$SRV" chrt -f 50 "$PY" "$ROOT/deploy/cluster/hosts_probe.py" wait-upload --iface "p$CUT_WORKER" --timeout 60 \
   --events "$EVENTS" --event cut --then "${cut_cmd[@]}"
 log "cut"
 sleep "$CUT_S"

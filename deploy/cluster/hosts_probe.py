@@ -97,7 +97,7 @@ def wait_upload(args: argparse.Namespace) -> int:
         recent = [(t, b) for t, b in recent if now - t <= args.within] + [(now, n)]
         if n - recent[0][1] >= args.bytes:
             break
-        time.sleep(0.002)
+        time.sleep(0.001)
     else:
         print(f"no upload burst on {args.iface} in {args.timeout:g} s: going on anyway", file=sys.stderr)
     if args.events:
@@ -339,6 +339,7 @@ def report(args: argparse.Namespace) -> int:
     retrying = [line for line in log.splitlines() if re.search(r"unreachable .*retrying", line)]
     again = [line for line in log.splitlines() if "reachable again after" in line]
     fig["cut_worker_log"] = (retrying[:1] + again[:1]) or None
+    fig["cut_during"] = cut_during(retrying[0]) if retrying else None
     checks.append(("the cut worker's log says it was retrying", bool(retrying)))
     fig["checkpoint_mb"] = args.checkpoint_bytes / 1e6
     fig["script_s"] = time.time() - ev["start"]
@@ -350,6 +351,13 @@ def report(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps(fig, indent=2) + "\n")
     print(lines(fig, checks))
     return 0 if all(ok for _, ok in checks) else 1
+
+
+def cut_during(line: str) -> str | None:
+    """What the cut worker was doing when the cut reached it, from its "unreachable while trying to X (...)" log
+    line: ``push segments`` when the cut fell mid-push, as the script intends."""
+    m = re.search(r"while trying to (.+?) \(", line)
+    return m.group(1) if m else None
 
 
 def _n(x: float | None, fmt: str = ".1f") -> str:
@@ -374,6 +382,7 @@ def lines(fig: dict, checks: list[tuple[str, bool]]) -> str:
             f"versions_during_cut: {fig['versions_during_cut']}",
             f"recovery_s: {_n(fig['recovery_s'])}",
             f"current_policy_s: {_n(fig['current_policy_s'])}",
+            f"cut_during: {fig['cut_during']}",
             f"segments_sent: {fig['segments_sent']}",
             f"segments_added_to_stream: {fig['segments_added_to_stream']}",
             f"segments_accepted: {fig['segments_accepted']}",
