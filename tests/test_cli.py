@@ -127,3 +127,22 @@ def test_bench_env_refuses_bad_sensor_and_race_options():
         result = runner.invoke(app, ["bench", "env", "--steps", "100", *args])
         assert result.exit_code == 2, (args, result.output)
         assert message in result.output and "Traceback" not in result.output
+
+
+def test_racer_bench_only_registers_the_benchmarks():
+    """Each ``racer bench`` command parses its options and shows what its module's ``command`` returns: no table,
+    check or figure is built in the CLI (racer/bench/ holds them)."""
+    import ast
+    import inspect
+
+    import racer.commands.bench as cli_bench
+
+    tree = ast.parse(inspect.getsource(cli_bench))
+    commands = [f for f in tree.body if isinstance(f, ast.FunctionDef) and f.decorator_list]
+    assert len(commands) == 12
+    for f in commands:
+        calls = [n.func for n in ast.walk(f) if isinstance(n, ast.Call)]
+        shown = [c for c in calls if isinstance(c, ast.Name) and c.id == "_show"]
+        assert len(shown) == 1, f.name
+        assert len(f.body) <= 7, f"racer bench {f.name}: {len(f.body)} statements"
+        assert not any(isinstance(c, ast.Name) and c.id in ("Table", "OptionError") for c in calls), f.name

@@ -91,9 +91,8 @@ def train(
     from racer.bench import train as bench
     from racer.runconfig import parse_duration
 
-    seed_numbers = int_list(seeds, "--seeds")
+    seed_numbers, limit = int_list(seeds, "--seeds"), parse_duration(time_limit)
     hp = str(hyperparams) if hyperparams else None
-    limit = parse_duration(time_limit)
     settings = bench.BenchTrainSettings(
         seed_numbers, limit, track, hp, workers, eval_episodes, sb3, sb3_n_steps, precision
     )
