@@ -114,6 +114,7 @@ def test_the_build_context_is_only_what_the_dockerfile_copies():
     assert copied == allowed
     for heavy in (".venv", ".git", "runs", "tests", "docs", ".env"):
         assert heavy not in allowed
+    assert "deploy/cluster/" in lines  # the cluster test harness runs from a checkout, never in the image
 
 
 # --- nothing open by default ---------------------------------------------------------------------------------------
