@@ -4,7 +4,7 @@
 #   BASE_IMAGE       a Debian-based image with Python >= 3.11 and `pip` on PATH          (python:3.11-slim)
 #   TORCH_SPEC       the torch requirement                                                 (torch==2.13.0)
 #   TORCH_INDEX_URL  the index torch comes from: PyTorch's CPU wheels, a mirror of them,   (https://download.pytorch.org/whl/cpu)
-#                    or any PEP 503 folder that holds the wheel (deploy/check-compose.sh serves a local wheel)
+#                    or any PEP 503 folder that holds the wheel (deploy/cluster/check-compose.sh serves a local wheel)
 # e.g. docker build --build-arg BASE_IMAGE=registry.example.com/python:3.11-slim \
 #        --build-arg TORCH_INDEX_URL=https://mirror.example.com/pytorch/whl/cpu -t racer .
 # The other packages come from pip's default index (PyPI); pass PIP_INDEX_URL as a build argument to change it.

@@ -8,7 +8,7 @@ Errors of the connection (``redis.RedisError``) pass through: the roles ride the
 from __future__ import annotations
 
 import json
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import redis
 
@@ -31,6 +31,15 @@ WATCH_TTL_S = 3
 POSE_TTL_S = 3
 """A watched worker's pose and frame keys expire this long after its last publish (a stopped worker's car leaves
 the page)."""
+
+
+class StreamCounts(NamedTuple):
+    """The segment stream as XINFO STREAM sees it."""
+
+    length: int
+    """Entries in the stream now."""
+    added: int | None
+    """Entries ever added (None on a Redis older than 7, which does not count them)."""
 
 
 class Bus:
@@ -85,6 +94,18 @@ class Bus:
     def segments_queued(self) -> int:
         """Segments in the stream now."""
         return int(self.redis.xlen(self.keys.segments))
+
+    def segment_stream(self) -> StreamCounts | None:
+        """The segment stream's length now and the entries ever added to it (XINFO STREAM; reading frees none, so
+        the count survives the trainer's trimming), None while the stream does not exist (before the first push)."""
+        try:
+            info = self.redis.xinfo_stream(self.keys.segments)
+        except redis.ResponseError as exc:
+            if "no such key" in str(exc).lower():
+                return None
+            raise
+        added = info.get("entries-added")  # Redis 7+
+        return StreamCounts(length=int(info["length"]), added=None if added is None else int(added))
 
     # --- workers: slots and heartbeats -----------------------------------------------------------
     def take_worker_slot(self) -> int:

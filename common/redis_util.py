@@ -39,7 +39,7 @@ def connect(url: str, retries: int = 1) -> redis.Redis:
 
     One retry cures a dropped idle connection; a longer outage must reach the caller's ``common.retry.Outage``
     soon, which backs off and says so in the log. With three, a silent 20 s cut (packets dropped, no reset) was
-    spent inside redis-py's own retries and the worker logged nothing (deploy/check-hosts.sh --cut drop)."""
+    spent inside redis-py's own retries and the worker logged nothing (deploy/cluster/check-hosts.sh --cut drop)."""
     if urlsplit(url).scheme not in ("redis", "rediss", "unix"):
         raise RedisUrlError(f"Redis URL {redact(url)!r} must start with redis://, rediss:// or unix://")
     try:

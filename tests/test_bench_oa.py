@@ -9,7 +9,7 @@ import pytest
 from common.action_space import load_action_space
 from common.config import EnvConfig
 from common.race import RaceType
-from racer.bench_oa import (
+from racer.bench.oa import (
     BOT_SPEED,
     BenchOASettings,
     _files,

@@ -11,7 +11,7 @@ import pytest
 
 from model_store import LocalStore, RunStore
 from model_store.runs import METRICS_FILE, evaluation_name
-from racer.bench_race import race_curve, seed_figures
+from racer.bench.race import race_curve, seed_figures
 
 
 def point(version: int, completion: float, mean_lap: float | None = None) -> dict:
@@ -66,7 +66,7 @@ def _reward_module(path: Path) -> SimpleNamespace:
 def test_the_reward_examples_constants_are_set_to_the_car(tmp_path) -> None:  # noqa: ANN001
     """80 % of the median lateral acceleration from 2 m/s and of the median braking from 1 m/s, written into a copy
     of the example that still runs as a reward function."""
-    from racer.bench_race import reward_constants, reward_file
+    from racer.bench.race import reward_constants, reward_file
 
     limits = {
         "speeds": [0.5, 1.0, 2.0, 3.0, 4.0],
@@ -85,8 +85,8 @@ def test_the_bench_turns_racers_stability_knobs_on_and_keeps_deepracers_rates(tm
     and target-KL early stopping on, with the guard's pace rule; learning rate and entropy constant, as in DeepRacer;
     bench oa the same without the pace rule."""
     from common.hyperparams import Hyperparameters, load_hyperparameters
-    from racer.bench_oa import OA_HYPERPARAMS
-    from racer.bench_race import GUARD_HYPERPARAMS, _files
+    from racer.bench.oa import OA_HYPERPARAMS
+    from racer.bench.race import GUARD_HYPERPARAMS, _files
 
     _, path = _files(tmp_path)
     hp = load_hyperparameters(path)
@@ -105,7 +105,7 @@ def test_the_bench_turns_racers_stability_knobs_on_and_keeps_deepracers_rates(tm
 def test_a_users_hyperparameters_are_laid_over_the_benchs(tmp_path) -> None:  # noqa: ANN001
     """``--hyperparams F``: the user's keys win, the bench's others stay, and the seeds train with the merge."""
     from common.hyperparams import load_hyperparameters
-    from racer.bench_race import RACE_HYPERPARAMS, BenchRaceSettings, _files
+    from racer.bench.race import RACE_HYPERPARAMS, BenchRaceSettings, _files
 
     settings = BenchRaceSettings(hyperparams={"stack_size": 3, "target_kl": 0.02})
     merged = settings.race_hyperparams()
@@ -119,7 +119,7 @@ def test_a_users_hyperparameters_are_laid_over_the_benchs(tmp_path) -> None:  # 
 def test_a_continuous_space_is_judged_on_its_expected_action_unless_the_user_says_otherwise(tmp_path) -> None:  # noqa: ANN001
     """A continuous space adds ``greedy_action`` ``expected`` (a discrete one would refuse it); the user's file wins."""
     from common.hyperparams import load_hyperparameters
-    from racer.bench_race import RACE_HYPERPARAMS, BenchRaceSettings, _files
+    from racer.bench.race import RACE_HYPERPARAMS, BenchRaceSettings, _files
 
     ranges = {"steering_angle": {"low": -25.0, "high": 25.0}, "speed": {"low": 1.5, "high": 4.0}}
     merged = BenchRaceSettings(actions=ranges).race_hyperparams()
@@ -134,7 +134,7 @@ def test_a_user_can_turn_the_benchs_collapse_guard_off(tmp_path) -> None:  # noq
     """``{"collapse_guard": false}`` (DeepRacer's behaviour) drops the bench's guard settings, which would change
     nothing without the guard, and keeps its other knobs; the merged file loads with no idle key noted."""
     from common.hyperparams import load_hyperparameters
-    from racer.bench_race import BenchRaceSettings, _files
+    from racer.bench.race import BenchRaceSettings, _files
 
     merged = BenchRaceSettings(hyperparams={"collapse_guard": False}).race_hyperparams()
     assert merged == {"collapse_guard": False, "target_kl": 0.05}
@@ -261,7 +261,7 @@ def test_a_users_reward_constants_are_laid_over_the_cars_and_written_into_the_ex
     """``--reward-constants F``: the example's own constants only, positive numbers (integers where the example's
     is one); the copy the seeds train with holds them and still runs as a reward function."""
     from common.errors import OptionError
-    from racer.bench_race import load_reward_constants, reward_file
+    from racer.bench.race import load_reward_constants, reward_file
 
     good = tmp_path / "constants.json"
     good.write_text('{"MARGIN": 0.25, "ITERATIONS": 200}')
@@ -287,7 +287,7 @@ def test_a_users_reward_constants_are_laid_over_the_cars_and_written_into_the_ex
 def test_the_seeds_train_with_the_users_randomization_and_the_json_records_it(tmp_path) -> None:  # noqa: ANN001
     """``--randomization F``: the workers' env gets the file's settings (racer's defaults otherwise: no action
     noise), and the bench's JSON records what the seeds trained with."""
-    from racer.bench_race import BenchRaceSettings, example_constants, seed_run, training_randomization
+    from racer.bench.race import BenchRaceSettings, example_constants, seed_run, training_randomization
 
     noisy = tmp_path / "randomization.json"
     noisy.write_text('{"action_noise": 0.1}')
@@ -304,7 +304,7 @@ def test_the_seeds_train_with_the_users_action_space_and_the_example_tops_at_its
     """``--action-space F``: a discrete space's actions go to the seeds' model_metadata.json, the reward example's
     MAX_SPEED is the space's top speed, and the default stays the bench's 4 m/s space."""
     from common.action_space import load_action_space
-    from racer.bench_race import (
+    from racer.bench.race import (
         RACE_ACTIONS,
         BenchRaceSettings,
         example_constants,
@@ -332,7 +332,7 @@ def test_a_continuous_action_space_trains_the_seeds_and_its_speeds_are_counted_i
     holds its ranges and type, the reward example's MAX_SPEED is the speed range's top, and ``command_speeds`` counts
     the speeds, all different, in 0.25 m/s bins keyed by the bin's lower edge."""
     from common.action_space import load_action_space
-    from racer.bench_race import (
+    from racer.bench.race import (
         BenchRaceSettings,
         command_speeds,
         example_constants,
@@ -363,7 +363,7 @@ def test_a_continuous_action_space_trains_the_seeds_and_its_speeds_are_counted_i
 
 
 def test_console_figures_are_rounded_and_say_when_a_seed_never_got_there() -> None:
-    from racer.bench_race import seconds_text, shares_text
+    from racer.bench.race import seconds_text, shares_text
 
     # A mean of laps counted in 1/15 s steps is not a round float (12.02 printed as 12.019999999999957).
     assert seconds_text(statistics.fmean([12.0 + 1 / 15, 11.0 + 14 / 15, 12.0 + 1 / 15])) == "12.02 s"

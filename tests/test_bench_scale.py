@@ -1,4 +1,4 @@
-"""``racer bench scale`` (racer/bench_scale.py): real segments replayed by synthetic workers into a real Redis and
+"""``racer bench scale`` (racer/bench/scale.py): real segments replayed by synthetic workers into a real Redis and
 the real trainer, at 1 and 4 workers' load; and the re-stamped entries the trainer reads are valid segments."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import redis
 from common.bus import Bus
 from common.errors import OptionError
 from common.protocol import decode_segment, encode_segment
-from racer.bench_scale import ScaleSettings, bench_scale, restamp, scale_summary, scale_table
+from racer.bench.scale import ScaleSettings, bench_scale, restamp, scale_summary, scale_table
 from tests.test_protocol import OBS, make_segment
 
 LEVEL_KEYS = {

@@ -11,7 +11,7 @@ import pytest
 
 from common.hyperparams import Hyperparameters
 from model_store import LocalStore, RunStore
-from racer.bench_train import (
+from racer.bench.train import (
     BenchTrainSettings,
     LapRun,
     SB3Actor,

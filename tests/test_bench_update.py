@@ -14,7 +14,7 @@ from torch import nn
 
 from common.config import PolicyConfig
 from common.policy import build_policy
-from racer.bench_update import GEMM_OPS, _ceiling
+from racer.bench.update import GEMM_OPS, _ceiling
 from trainer.peak import Gemm, LayerCost, layer_costs, peak_precisions, step_flops, update_flops
 
 DISCRETE = {"kind": "discrete", "n": 10}

@@ -1,7 +1,7 @@
-"""racer/bench_wire.py: the wire figures it reports are of segments that decode bit for bit, and add up."""
+"""racer/bench/wire.py: the wire figures it reports are of segments that decode bit for bit, and add up."""
 
 from common.protocol import encode_segment
-from racer.bench_wire import (
+from racer.bench.wire import (
     codec_figures,
     driven_segments,
     policy_figures,

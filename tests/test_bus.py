@@ -62,6 +62,20 @@ def test_segments_travel_in_order_and_are_freed_once_read(redis_url, run_id):
     assert bus.read_segments(entries[-1][0], count=10, block_ms=10) == []
 
 
+def test_segment_stream_counts_every_entry_added_even_once_freed(redis_url, run_id):
+    bus = Bus(redis.Redis.from_url(redis_url), run_id)
+    assert bus.segment_stream() is None  # before the first push
+    segs = [encode_segment(make_segment(run_id)) for _ in range(3)]
+    bus.push_segments(segs, heartbeat("w0"), maxlen=100, heartbeat_ttl_s=5)
+    entries = bus.read_segments("0-0", count=10, block_ms=10)
+    bus.drop_segments_through(entries[-1][0])
+    counts = bus.segment_stream()
+    assert counts is not None and counts.added == 3 and counts.length <= 3
+    bus.redis.set(bus.keys.segments, "not a stream")
+    with pytest.raises(redis.ResponseError):  # only a missing stream reads as None
+        bus.segment_stream()
+
+
 def test_heartbeats_and_evaluations_skip_and_count_what_is_malformed(redis_url, run_id):
     r = redis.Redis.from_url(redis_url)
     bus = Bus(r, run_id)

@@ -99,11 +99,11 @@ def test_bench_env_with_sensors_and_a_race_adds_them_and_their_parts(tmp_path):
 
 def test_bench_env_reports_none_for_the_parts_an_env_does_not_have():
     from common.config import EnvConfig
-    from sim.bench import race_config
+    from racer.bench.env import race_config
 
     # A child process: bench_env pins its process to one core.
     code = (
-        "import json, sys; from common.config import EnvConfig; from sim.bench import bench_env, race_config; "
+        "import json, sys; from common.config import EnvConfig; from racer.bench.env import bench_env, race_config; "
         "r = bench_env(EnvConfig(), steps=20, repeats=1, race=race_config('HEAD_TO_BOT', 0)); "
         "sys.stdout.write(json.dumps(r))"
     )
@@ -127,3 +127,22 @@ def test_bench_env_refuses_bad_sensor_and_race_options():
         result = runner.invoke(app, ["bench", "env", "--steps", "100", *args])
         assert result.exit_code == 2, (args, result.output)
         assert message in result.output and "Traceback" not in result.output
+
+
+def test_racer_bench_only_registers_the_benchmarks():
+    """Each ``racer bench`` command parses its options and shows what its module's ``command`` returns: no table,
+    check or figure is built in the CLI (racer/bench/ holds them)."""
+    import ast
+    import inspect
+
+    import racer.commands.bench as cli_bench
+
+    tree = ast.parse(inspect.getsource(cli_bench))
+    commands = [f for f in tree.body if isinstance(f, ast.FunctionDef) and f.decorator_list]
+    assert len(commands) == 12
+    for f in commands:
+        calls = [n.func for n in ast.walk(f) if isinstance(n, ast.Call)]
+        shown = [c for c in calls if isinstance(c, ast.Name) and c.id == "_show"]
+        assert len(shown) == 1, f.name
+        assert len(f.body) <= 7, f"racer bench {f.name}: {len(f.body)} statements"
+        assert not any(isinstance(c, ast.Name) and c.id in ("Table", "OptionError") for c in calls), f.name

@@ -1,6 +1,6 @@
 """docker-compose.yml, its overrides and the Dockerfile, read as files: they parse and match the CLI they drive,
-nothing is open by default, and the test overrides keep to what deploy/check-compose.sh and deploy/check-swarm.sh
-rely on. tests/test_docker.py runs them for real where a Docker daemon answers."""
+nothing is open by default, and the test overrides keep to what deploy/cluster/check-compose.sh and
+deploy/cluster/check-swarm.sh rely on. tests/test_docker.py runs them for real where a Docker daemon answers."""
 
 import re
 import shutil
@@ -114,6 +114,7 @@ def test_the_build_context_is_only_what_the_dockerfile_copies():
     assert copied == allowed
     for heavy in (".venv", ".git", "runs", "tests", "docs", ".env"):
         assert heavy not in allowed
+    assert "deploy/cluster/" in lines  # the cluster test harness runs from a checkout, never in the image
 
 
 # --- nothing open by default ---------------------------------------------------------------------------------------
@@ -180,7 +181,7 @@ def test_compose_up_without_the_secrets_stops_naming_the_line_to_add(compose_cmd
 
 
 def test_the_test_override_swaps_only_the_images_that_cannot_be_pulled_and_runs_on_the_host_network():
-    base, test = compose()["services"], load("deploy/compose.test.yml")["services"]
+    base, test = compose()["services"], load("deploy/cluster/compose.test.yml")["services"]
     assert set(test) == set(base)
     assert all(svc["network_mode"] == "host" for svc in test.values())
     assert test["redis"]["image"].startswith("racer-standin-redis:")
@@ -197,12 +198,12 @@ def test_the_test_override_swaps_only_the_images_that_cannot_be_pulled_and_runs_
         assert set(env) - {"RACER_REDIS_URL", "AWS_ENDPOINT_URL"} <= envvars(role)
         assert "127.0.0.1" in env["RACER_REDIS_URL"] and "127.0.0.1" in env["AWS_ENDPOINT_URL"]
     assert test["trainer"]["build"]["args"]["BASE_IMAGE"].startswith("racer-standin-python:")
-    hp = yaml.safe_load((ROOT / "deploy/compose.test.hyperparameters.json").read_text())
+    hp = yaml.safe_load((ROOT / "deploy/cluster/compose.test.hyperparameters.json").read_text())
     assert hp["batch_size"] <= 64 and hp["num_episodes_between_training"] <= 4
 
 
 def test_swarm_override_puts_every_service_on_the_host_network():
-    swarm = load("deploy/swarm.test.yml")
+    swarm = load("deploy/cluster/swarm.test.yml")
     assert swarm["networks"]["hostnet"] == {"external": True, "name": "host"}
     assert set(swarm["services"]) == set(compose()["services"])
     assert all(svc == {"networks": ["hostnet"]} for svc in swarm["services"].values())
@@ -212,7 +213,7 @@ def test_check_swarm_turns_each_depends_on_into_the_short_form_and_changes_nothi
     """docker stack deploy rejects compose's `depends_on: {svc: {condition: ...}}`; check-swarm.sh rewrites each
     such line with sed. The file must keep one condition per line for that, and the result must load as the same
     file with list-form depends_on."""
-    script = (ROOT / "deploy/check-swarm.sh").read_text()
+    script = (ROOT / "deploy/cluster/check-swarm.sh").read_text()
     (expr,) = re.findall(r"sed -E '(s/.*/)' \"\$ROOT/docker-compose.yml\"", script)
     _, pattern, replacement, _ = expr.split("/")
     text = (ROOT / "docker-compose.yml").read_text()
@@ -230,7 +231,7 @@ def test_no_interpolation_message_contains_a_dash():
     """docker stack deploy reads `${VAR:?message}` with a '-' in the message as `${VAR-default}`."""
     for name in (
         "docker-compose.yml",
-        "deploy/compose.test.yml",
+        "deploy/cluster/compose.test.yml",
         "deploy/compose.publish.yml",
         "deploy/compose.gpu.yml",
     ):

@@ -1,6 +1,6 @@
-"""docker-compose.yml for real: deploy/check-compose.sh (docker compose, from nothing: image builds, 3 then 5
-workers, a killed worker, racer models ls, down and up again) and deploy/check-swarm.sh (docker stack deploy on a
-one-node swarm, docker service scale). Minutes each; skipped where no Docker daemon answers (CI may have none).
+"""docker-compose.yml for real: deploy/cluster/check-compose.sh (docker compose, from nothing: image builds, 3 then 5
+workers, a killed worker, racer models ls, down and up again) and deploy/cluster/check-swarm.sh (docker stack deploy
+on a one-node swarm, docker service scale). Minutes each; skipped where no Docker daemon answers (CI may have none).
 The swarm check reuses the images the compose check built; everything is removed at the end."""
 
 import os
@@ -47,7 +47,7 @@ def images():
 
 def run(script: str, *args: str) -> str:
     proc = subprocess.run(
-        ["bash", str(ROOT / "deploy" / script), "--tag", TAG, *args],
+        ["bash", str(ROOT / "deploy" / "cluster" / script), "--tag", TAG, *args],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,

@@ -1,10 +1,11 @@
-"""Workers on other hosts over a bad network: ``deploy/check-hosts.sh`` run for real, as an operator would run it.
+"""Workers on other hosts over a bad network: ``deploy/cluster/check-hosts.sh`` run for real, as an operator would run
+it.
 
 The script builds three Linux network namespaces (a server host with redis-server, moto's S3 server and the trainer;
 two worker hosts), shapes the worker links (tc tbf 20 Mbit/s, 1 % loss with iptables, 50 ± 10 ms through
-``deploy/delay_proxy.py``), cuts one worker host off for 20 s and heals it, and checks that training went on, that the
-cut worker came back and that every segment was counted once. It needs root (namespaces, tc, iptables) and is skipped
-otherwise, with the reason.
+``deploy/cluster/delay_proxy.py``), cuts one worker host off for 20 s and heals it, and checks that training went on,
+that the cut worker came back and that every segment was counted once. It needs root (namespaces, tc, iptables) and
+is skipped otherwise, with the reason.
 
 It is slow on purpose (about 3 minutes: real processes, two 30 s measurement windows, a 20 s cut), and stays in the
 suite: it is the only test of racer across real network links. The delaying proxy also has a quick test of its own
@@ -27,17 +28,17 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "deploy" / "check-hosts.sh"
-PROXY = ROOT / "deploy" / "delay_proxy.py"
+SCRIPT = ROOT / "deploy" / "cluster" / "check-hosts.sh"
+PROXY = ROOT / "deploy" / "cluster" / "delay_proxy.py"
 
 
 def _cannot_run_hosts() -> str | None:
     """Why the namespace check cannot run here, or None."""
     if os.geteuid() != 0:
         return "needs root: it creates network namespaces, veth pairs, tc qdiscs and iptables rules"
-    for tool in ("ip", "tc", "iptables"):
+    for tool in ("ip", "tc", "iptables", "chrt"):
         if shutil.which(tool) is None:
-            return f"needs {tool} (iproute2 for ip and tc, the iptables package for iptables)"
+            return f"needs {tool} (iproute2 for ip and tc, the iptables package for iptables, util-linux for chrt)"
     if subprocess.run(["ip", "netns", "list"], capture_output=True).returncode != 0:
         return "`ip netns` does not work here"
     return None
@@ -165,7 +166,7 @@ def _sample(t: float, trainer_version: int, worker_version: int, segments: int) 
 def test_cut_figures_wants_the_policy_current_at_the_heal_not_the_trainers_latest():
     """A worker that caught up with the version published before the heal has recovered, even if the trainer has
     published again since (with a 23 MB checkpoint on a shaped link it may stay one behind for minutes)."""
-    from deploy.hosts_probe import cut_figures
+    from deploy.cluster.hosts_probe import cut_figures
 
     rows = [
         _sample(0.0, 3, 3, 10),  # cut at t=1
@@ -178,3 +179,60 @@ def test_cut_figures_wants_the_policy_current_at_the_heal_not_the_trainers_lates
     assert f["recovery_s"] == pytest.approx(2.0)
     assert f["current_policy_s"] == pytest.approx(6.0)
     assert cut_figures(rows[:3], "w1", cut=1.0, heal=6.0)["current_policy_s"] is None
+
+
+def test_a_sample_reads_the_run_through_the_bus(redis_url, run_id):
+    """The sampler takes the trainer's status, the policy, the heartbeats and the stream's counts from the bus (the
+    one owner of the key names); a missing stream is null, not zero."""
+    import redis as redis_py
+
+    from common.bus import Bus
+    from common.protocol import Heartbeat, PolicyVersion, encode_segment
+    from deploy.cluster.hosts_probe import snapshot
+    from tests.test_protocol import make_segment
+
+    bus = Bus(redis_py.Redis.from_url(redis_url), run_id)
+    assert snapshot(bus, [])["stream"] is None
+    bus.set_trainer_status({"time": 1.0, "segments_by_worker": {"w0": 2}})
+    bus.publish_policy(PolicyVersion(version=4, checkpoint_key="k", created=0.0))
+    beat = Heartbeat(worker_id="w0", pid=1, host="h", policy_version=4, env_steps=64, segments=2, time=1.0)
+    bus.push_segments([encode_segment(make_segment(run_id))] * 2, beat, maxlen=100, heartbeat_ttl_s=5)
+    row = snapshot(bus, ["lo"])
+    assert row["trainer"]["segments_by_worker"] == {"w0": 2} and row["policy"] == 4
+    assert row["workers"] == {"w0": {"segments": 2, "env_steps": 64, "policy_version": 4, "time": 1.0}}
+    assert row["stream"] == {"length": 2, "added": 2}
+
+
+def test_hosts_probe_spells_no_redis_key():
+    source = (ROOT / "deploy" / "cluster" / "hosts_probe.py").read_text()
+    assert "racer:" not in source and not re.search(r"heartbeat:|xinfo|scan_iter|from_url", source)
+
+
+def test_the_segment_figures_come_from_a_sample_that_read_the_stream():
+    """A last sample without the stream (or without the trainer's status) does not turn the count of segments added
+    into 0: accounting reads the last sample that had both."""
+    from deploy.cluster.hosts_probe import accounting, counted, stream_gaps
+
+    trainer = {"segments_by_worker": {"w0": 50, "w1": 7}, "dropped": {"stale": 15, "bad_heartbeat": 2}}
+    rows = [
+        {"t": 0.0, "trainer": None, "stream": None},
+        {"t": 1.0, "trainer": trainer, "stream": {"length": 3, "added": 72}},
+        {"t": 2.0, "trainer": trainer, "stream": None},
+        {"t": 3.0, "trainer": None, "stream": {"length": 0, "added": 72}},
+    ]
+    assert counted(rows)["t"] == 1.0
+    assert accounting(counted(rows)) == (57, 15, 72)
+    assert stream_gaps(rows) == 1
+    assert counted(rows[:1]) is None
+
+
+def test_the_report_says_what_the_cut_worker_was_doing_when_cut():
+    from deploy.cluster.hosts_probe import cut_during
+
+    line = (
+        "2026-11-29 08:03:56,038 racer.worker WARNING Redis at redis://:***@127.0.0.1:6379/0 unreachable while "
+        "trying to push segments (Connection closed by server.); retrying with backoff"
+    )
+    assert cut_during(line) == "push segments"
+    assert cut_during(line.replace("push segments", "poll the policy")) == "poll the policy"
+    assert cut_during("unreachable; retrying") is None

@@ -424,8 +424,8 @@ def test_a_front_camera_network_keeps_the_state_dict_of_checkpoints_before_lidar
 
 @functools.cache
 def _driven_frames() -> np.ndarray:
-    """200 real camera frames of the default run, driven by its untrained network (racer/bench_wire.py)."""
-    from racer.bench_wire import driven_segments
+    """200 real camera frames of the default run, driven by its untrained network (racer/bench/wire.py)."""
+    from racer.bench.wire import driven_segments
 
     return np.concatenate([s.arrays["obs"] for s in driven_segments(steps=50, segments=4, seed=1)])
 

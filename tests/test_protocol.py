@@ -342,7 +342,7 @@ def test_stacked_frames_travel_once_and_come_back_bit_exact(stack, sensor, redis
 
 def test_real_camera_frames_fit_the_wire_budget():
     """A default run's segment (front camera, one frame, 32 steps) of real frames is at most 8 kB a step."""
-    from racer.bench_wire import driven_segments
+    from racer.bench.wire import driven_segments
 
     [seg] = driven_segments(steps=32, segments=1)
     fields = encode_segment(seg)

@@ -401,7 +401,7 @@ def test_mujoco_camera_with_surface_randomization(randomization: dict) -> None:
 def test_stereo_views_get_one_augmentation_draw(tmp_path: Path) -> None:
     """DeepRacer's stereo pair is one sensor: both views get the same noise pixels (one draw, applied to each view
     on its own before the pair is interleaved)."""
-    from sim.bench import write_sensor_space
+    from racer.bench.env import write_sensor_space
 
     meta = str(write_sensor_space(tmp_path, ["STEREO_CAMERAS"]))
     plain, _ = RacerEnv(track=TRACK, action_space=meta).reset(seed=3, options=PIN)

@@ -1,7 +1,7 @@
 """A soak run of ``racer train`` (90 s, 2 workers, many short iterations): Redis memory, Redis keys, the segment
 stream and each role's memory stay bounded. ``racer bench soak --duration 10m`` runs the same for longer."""
 
-from racer.bench_soak import bench_soak
+from racer.bench.soak import bench_soak
 
 SEGMENT_MB = 16 * 120 * 160 / 2**20  # one 16-step segment of 160×120 frames
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from common.policy import bf16_is_fast, build_policy
-from racer.bench_update import bench_update
+from racer.bench.update import bench_update
 from trainer.ppo import PPOBatch, minibatch_step
 from trainer.precision import fastest, precision_candidates, time_precisions
 from trainer.process import make_optimizer

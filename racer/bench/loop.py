@@ -10,11 +10,13 @@ import time
 
 import redis
 from rich.console import Console
+from rich.table import Table
 
 from common.bus import Bus
 from common.defaults import DEFAULT_TRACK
 from common.protocol import encode_segment
 from model_store import LocalStore, RunStore
+from racer.bench import Report, figures_table
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
 from racer.runconfig import build_run
@@ -128,3 +130,32 @@ def bench_loop(workers: int, duration_s: float, track: str = DEFAULT_TRACK, hype
         "worker_peak_rss_mb": sorted(monitor.worker_rss.values()),
         "redis_peak_memory_mb": monitor.redis_peak / 2**20,
     }
+
+
+def transport_command(track: str, segments: int, segment_steps: int) -> Report:
+    """``racer bench transport``: on one core, the Redis transport cost of a segment against simulating it."""
+    from racer.bench.env import pin_to_one_core
+
+    pin_to_one_core()
+    figures = bench_transport(track, segment_steps, segments)
+    return Report(figures, [figures_table(figures, "{:.4g}")])
+
+
+def command(counts: list[int], seconds: float, track: str, hyperparams: str | None) -> Report:
+    """``racer bench loop``: a run of ``seconds`` for each worker count in ``counts``."""
+    results = [bench_loop(n, seconds, track, hyperparams) for n in counts]
+    table = Table(
+        "workers", "steps/s consumed", "iterations", "propagation s (median/max)", "trainer MB", "worker MB", "redis MB"
+    )
+    for r in results:
+        median, worst = r["propagation_s_median"], r["propagation_s_max"]
+        table.add_row(
+            str(r["workers"]),
+            f"{r['consumed_steps_per_s']:.0f}",
+            str(r["iterations"]),
+            "-" if median is None else f"{median:.2f}/{worst:.2f}",
+            f"{r['trainer_peak_rss_mb']:.0f}",
+            ", ".join(f"{m:.0f}" for m in r["worker_peak_rss_mb"]),
+            f"{r['redis_peak_memory_mb']:.0f}",
+        )
+    return Report(results, [table])

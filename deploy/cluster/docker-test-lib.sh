@@ -1,8 +1,8 @@
 # shellcheck shell=bash
-# Shared by deploy/check-compose.sh and deploy/check-swarm.sh (sourced, not run): options, images, ports,
+# Shared by deploy/cluster/check-compose.sh and deploy/cluster/check-swarm.sh (sourced, not run): options, images, ports,
 # waiting, racer from the host, figures and cleanup. Bash; the caller has `set -euo pipefail`.
 
-ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 SCRIPT=$(basename "$0")
 T0=$(date +%s)
 PHASES=()     # "name seconds"
@@ -302,11 +302,11 @@ build_images() {
     remember_dangling
     make_base_image
     serve_torch_wheel
-    build_image "racer-standin-python:$TAG" "$ROOT/deploy/standins/python.Dockerfile" "$ROOT/deploy/standins" \
+    build_image "racer-standin-python:$TAG" "$ROOT/deploy/cluster/standins/python.Dockerfile" "$ROOT/deploy/cluster/standins" \
         --build-arg "BASE_IMAGE=$BASE"
-    build_image "racer-standin-redis:$TAG" "$ROOT/deploy/standins/redis.Dockerfile" "$ROOT/deploy/standins" \
+    build_image "racer-standin-redis:$TAG" "$ROOT/deploy/cluster/standins/redis.Dockerfile" "$ROOT/deploy/cluster/standins" \
         --build-arg "BASE_IMAGE=$BASE"
-    build_image "racer-standin-s3:$TAG" "$ROOT/deploy/standins/s3.Dockerfile" "$ROOT/deploy/standins" \
+    build_image "racer-standin-s3:$TAG" "$ROOT/deploy/cluster/standins/s3.Dockerfile" "$ROOT/deploy/cluster/standins" \
         --build-arg "PYTHON_IMAGE=racer-standin-python:$TAG"
     build_image "racer-test:$TAG" "$ROOT/Dockerfile" "$ROOT" --network host \
         --build-arg "BASE_IMAGE=racer-standin-python:$TAG" \
@@ -339,7 +339,7 @@ run_cleanups() {
     CLEANUPS=()
 }
 
-# The variables docker-compose.yml and deploy/compose.test.yml read, in an env file so that a .env in the checkout
+# The variables docker-compose.yml and deploy/cluster/compose.test.yml read, in an env file so that a .env in the checkout
 # plays no part, and exported (the shell's variables win over an env file).
 write_env() {
     ENV_FILE=$(mktemp)

@@ -55,6 +55,7 @@ from common.defaults import DEFAULT_TRACK
 from common.errors import OptionError
 from common.jsonfile import read_json_object
 from model_store import LocalStore, RunStore
+from racer.bench import Report
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
 from racer.runconfig import build_run, load_randomization
@@ -481,3 +482,66 @@ def plot_race(result: dict[str, Any], out_png: str | Path) -> Path:
     ax_done.set_ylim(-0.05, 1.05)
     ax_lap.set_title(f"racer bench race: {result['track']}, car {result['car']}, {result['minutes']:g} min per seed")
     return save_figure(fig, out_png)
+
+
+@dataclass
+class RaceFiles:
+    """The user's files for ``racer bench race`` (each None: the bench's own)."""
+
+    hyperparams: Path | None = None
+    """A DeepRacer hyperparameters.json laid over :data:`RACE_HYPERPARAMS`."""
+    reward_constants: Path | None = None
+    """JSON of the racing example's constants over those set to the car."""
+    randomization: Path | None = None
+    """JSON of the domain randomization the workers train with."""
+    action_space: Path | None = None
+    """A model_metadata.json with a discrete or continuous action space."""
+
+
+def command(
+    seeds: list[int],
+    minutes: float,
+    track: str,
+    car: str,
+    workers: int,
+    eval_starts: int,
+    files: RaceFiles,
+    png: Path | None = None,
+    progress: Console | None = None,
+) -> Report:
+    """``racer bench race``: check the car, track and the user's files before any training, run the seeds, plot
+    them to ``png`` if given and compare the best robust lap with the limit."""
+    from common.hyperparams import HyperparametersError, load_hyperparameters
+    from sim.track import load_track
+
+    load_car(car)  # a bad car, track or hyperparameters file fails now, not after the first seed's training
+    load_track(track)
+    overrides = {}
+    if files.hyperparams:
+        load_hyperparameters(files.hyperparams)
+        overrides = read_json_object(files.hyperparams, "hyperparameters file", HyperparametersError)
+    constants = load_reward_constants(files.reward_constants) if files.reward_constants else {}
+    if files.randomization:
+        load_randomization(files.randomization)
+    actions = load_race_actions(files.action_space) if files.action_space else None
+    if overrides.get("greedy_action", "mean") != "mean" and not isinstance(actions, dict):
+        # A discrete space acts by its argmax: refused now, naming the user's file, not after the limit has run.
+        raise HyperparametersError(
+            f"{files.hyperparams}: greedy_action {overrides['greedy_action']!r} applies to a continuous action "
+            "space; the bench's is discrete"
+        )
+    randomization = str(files.randomization) if files.randomization else None
+    settings = BenchRaceSettings(
+        seeds, minutes, track, car, workers, eval_starts, overrides, constants, randomization, actions
+    )
+    result = bench_race(settings, progress)
+    if png:
+        plot_race(result, png)
+    ratio = result["ratio_to_limit"]
+    line = (
+        f"median best robust lap {seconds_text(result['best_robust_lap_s'])}, limit {result['limit_s']:.2f} s"
+        + (f" ({ratio:.2f} x)" if ratio else "")
+        + f", collapses {result['collapses']} ({result['collapses_recovered']} recovered)"
+        + f", late robust lap {seconds_text(result['late_robust_lap_s'])}"
+    )
+    return Report(result, [line])

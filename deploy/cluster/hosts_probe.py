@@ -1,11 +1,15 @@
-"""Measurements for ``deploy/check-hosts.sh``: sample a run's Redis and the worker links, wait for states, report.
+"""Measurements for ``deploy/cluster/check-hosts.sh``: sample a run's Redis and the worker links, wait for states,
+report.
 
 ``sample`` writes one JSON line every ``--every`` seconds until stopped: the trainer's status, the published policy,
-every live worker's heartbeat, the segment stream (length, entries ever added) and the byte counters of the given
-network interfaces (read from /sys/class/net, so it runs in the namespace that holds them). ``wait`` polls those
-samples until a named state is reached (exit 1 on timeout). ``report`` reads the samples and the script's events
-(``name epoch-seconds`` lines), checks what the script promises, prints the figures last and exits 0 only if every
-check held. It reads Redis with plain redis-py (no racer import) so that it starts in a fraction of a second.
+every live worker's heartbeat, the segment stream (length, entries ever added; null while the stream does not
+exist) and the byte counters of the given network interfaces (read from /sys/class/net, so it runs in the namespace
+that holds them). ``wait`` polls those samples until a named state is reached (exit 1 on timeout). ``report`` reads
+the samples and the script's events (``name epoch-seconds`` lines), checks what the script promises, prints the
+figures last and exits 0 only if every check held.
+
+Redis is read only through :class:`common.bus.Bus` (the one owner of the key names), imported by ``sample`` alone:
+``wait``, ``wait-upload`` and ``report`` need no racer import and start in a fraction of a second.
 """
 
 from __future__ import annotations
@@ -20,40 +24,21 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import redis
-
-
-def keys(run_id: str) -> dict[str, str]:
-    """The racer keys read here (common/keys.py: Keys)."""
-    prefix = f"racer:{run_id}:"
-    return {
-        "trainer": prefix + "trainer",
-        "policy": prefix + "policy",
-        "segments": prefix + "segments",
-        "heartbeats": prefix + "heartbeat:*",
-    }
+if TYPE_CHECKING:
+    from common.bus import Bus
 
 
-def snapshot(r: redis.Redis, k: dict[str, str], ifaces: list[str]) -> dict:
+def snapshot(bus: Bus, ifaces: list[str]) -> dict:
     """One sample: see the module docstring."""
-    out: dict = {"t": time.time()}
-    raw = r.get(k["trainer"])
-    out["trainer"] = json.loads(raw) if raw else None
-    raw = r.get(k["policy"])
-    out["policy"] = json.loads(raw)["version"] if raw else None
-    workers = {}
-    for key in r.scan_iter(match=k["heartbeats"], count=100):
-        raw = r.get(key)
-        if raw:
-            hb = json.loads(raw)
-            workers[hb["worker_id"]] = {f: hb[f] for f in ("segments", "env_steps", "policy_version", "time")}
-    out["workers"] = workers
-    try:
-        info = r.xinfo_stream(k["segments"])
-        out["stream"] = {"length": info["length"], "added": info.get("entries-added")}
-    except redis.ResponseError:  # no stream yet
-        out["stream"] = {"length": 0, "added": 0}
+    out: dict = {"t": time.time(), "trainer": bus.trainer_status()}
+    policy = bus.policy()
+    out["policy"] = policy.version if policy else None
+    beats, _ = bus.heartbeats()
+    out["workers"] = {hb.worker_id: {f: getattr(hb, f) for f in HEARTBEAT_FIELDS} for hb in beats}
+    stream = bus.segment_stream()
+    out["stream"] = None if stream is None else stream._asdict()
     net = {}
     for name in ifaces:
         stats = Path("/sys/class/net") / name / "statistics"
@@ -63,11 +48,19 @@ def snapshot(r: redis.Redis, k: dict[str, str], ifaces: list[str]) -> dict:
     return out
 
 
+HEARTBEAT_FIELDS = ("segments", "env_steps", "policy_version", "time")
+"""What a sample keeps of each worker's heartbeat."""
+
+
 def sample(args: argparse.Namespace) -> int:
     if not args.redis:
         raise SystemExit("sample needs --redis or RACER_REDIS_URL")
-    r = redis.Redis.from_url(args.redis, socket_timeout=5, socket_connect_timeout=5)
-    k = keys(args.run_id)
+    import redis  # here, not at the top: wait and wait-upload must start at once
+
+    from common.bus import Bus
+    from common.redis_util import connect
+
+    bus = Bus(connect(args.redis), args.run_id)
     ifaces = [i for i in args.ifaces.split(",") if i]
     stop = False
 
@@ -81,7 +74,7 @@ def sample(args: argparse.Namespace) -> int:
         while not stop:
             t0 = time.monotonic()
             try:
-                line = snapshot(r, k, ifaces)
+                line = snapshot(bus, ifaces)
             except (redis.RedisError, OSError, ValueError, KeyError) as exc:
                 line = {"t": time.time(), "error": str(exc)[:200]}
             out.write(json.dumps(line) + "\n")
@@ -104,7 +97,7 @@ def wait_upload(args: argparse.Namespace) -> int:
         recent = [(t, b) for t, b in recent if now - t <= args.within] + [(now, n)]
         if n - recent[0][1] >= args.bytes:
             break
-        time.sleep(0.002)
+        time.sleep(0.001)
     else:
         print(f"no upload burst on {args.iface} in {args.timeout:g} s: going on anyway", file=sys.stderr)
     if args.events:
@@ -147,11 +140,24 @@ def segment_drops(trainer: dict) -> dict[str, int]:
     return {k: v for k, v in trainer.get("dropped", {}).items() if k != "bad_heartbeat"}
 
 
+def counted(rows: list[dict]) -> dict | None:
+    """The last sample that read both the trainer's status and the segment stream, None if none did. The segment
+    figures all come from this one sample: a later one may have lost either (the status expires 30 s after the
+    trainer stops; a sample taken while the stream is missing has no count of it)."""
+    return next((r for r in reversed(rows) if r["trainer"] and r["stream"] is not None), None)
+
+
 def accounting(row: dict) -> tuple[int, int, int]:
-    """(accepted, dropped, added to the stream) in one sample."""
-    tr = row["trainer"] or {}
+    """(accepted, dropped, added to the stream) in one sample that read both (``counted``)."""
+    tr = row["trainer"]
     accepted = sum(tr.get("segments_by_worker", {}).values())
     return accepted, sum(segment_drops(tr).values()), row["stream"]["added"] or 0
+
+
+def stream_gaps(rows: list[dict]) -> int:
+    """Samples without the segment stream after one that had it (0 on a healthy run: nothing deletes it)."""
+    first = next((i for i, r in enumerate(rows) if r["stream"] is not None), len(rows))
+    return sum(r["stream"] is None for r in rows[first:])
 
 
 def cut_figures(rows: list[dict], worker: str, cut: float, heal: float) -> dict:
@@ -217,10 +223,10 @@ def done(args: argparse.Namespace, rows: list[dict], last: dict, workers: list[s
         return f["recovery_s"] is not None and f["current_policy_s"] is not None
     if args.state == "settled":  # the workers stopped and the trainer has read every segment they sent
         since = events(args.events)["workers_stopped"]
-        tr = last["trainer"]
-        if not tr or tr["time"] < since + 1.5:
+        row = counted(rows)
+        if row is None or row["trainer"]["time"] < since + 1.5:
             return False
-        accepted, dropped, added = accounting(last)
+        accepted, dropped, added = accounting(row)
         return accepted + dropped >= added
     raise SystemExit(f"unknown state {args.state!r}")
 
@@ -289,7 +295,10 @@ def report(args: argparse.Namespace) -> int:
         ("the cut worker acts with the policy current at the heal (or newer)", cut["current_policy_s"] is not None)
     )
 
-    final = rows[-1]
+    final = counted(rows)
+    if final is None:
+        print("FAIL  a sample read both the trainer's status and the segment stream")
+        return 1
     last_beats: dict[str, int] = {}
     for r in rows:
         for w, hb in r["workers"].items():
@@ -304,6 +313,8 @@ def report(args: argparse.Namespace) -> int:
     fig["segments_accepted"] = accepted
     fig["segments_accepted_by_worker"] = final["trainer"]["segments_by_worker"]
     fig["segments_dropped"] = drops
+    fig["segments_counted_at"] = final["t"] - ev["start"]
+    fig["samples_without_stream"] = stream_gaps(rows)
     # A segment can reach the stream twice (a push cut off mid-way is retried while TCP still delivers the first
     # copy): the trainer must drop every extra copy as a duplicate, and count each segment sent exactly once.
     checks.append(
@@ -328,6 +339,7 @@ def report(args: argparse.Namespace) -> int:
     retrying = [line for line in log.splitlines() if re.search(r"unreachable .*retrying", line)]
     again = [line for line in log.splitlines() if "reachable again after" in line]
     fig["cut_worker_log"] = (retrying[:1] + again[:1]) or None
+    fig["cut_during"] = cut_during(retrying[0]) if retrying else None
     checks.append(("the cut worker's log says it was retrying", bool(retrying)))
     fig["checkpoint_mb"] = args.checkpoint_bytes / 1e6
     fig["script_s"] = time.time() - ev["start"]
@@ -339,6 +351,13 @@ def report(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps(fig, indent=2) + "\n")
     print(lines(fig, checks))
     return 0 if all(ok for _, ok in checks) else 1
+
+
+def cut_during(line: str) -> str | None:
+    """What the cut worker was doing when the cut reached it, from its "unreachable while trying to X (...)" log
+    line: ``push segments`` when the cut fell mid-push, as the script intends."""
+    m = re.search(r"while trying to (.+?) \(", line)
+    return m.group(1) if m else None
 
 
 def _n(x: float | None, fmt: str = ".1f") -> str:
@@ -363,6 +382,7 @@ def lines(fig: dict, checks: list[tuple[str, bool]]) -> str:
             f"versions_during_cut: {fig['versions_during_cut']}",
             f"recovery_s: {_n(fig['recovery_s'])}",
             f"current_policy_s: {_n(fig['current_policy_s'])}",
+            f"cut_during: {fig['cut_during']}",
             f"segments_sent: {fig['segments_sent']}",
             f"segments_added_to_stream: {fig['segments_added_to_stream']}",
             f"segments_accepted: {fig['segments_accepted']}",

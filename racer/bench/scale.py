@@ -41,6 +41,7 @@ from common.defaults import DEFAULT_TRACK
 from common.errors import OptionError
 from common.protocol import Heartbeat, decode_segment, encode_segment
 from model_store import LocalStore, RunStore
+from racer.bench import Report
 from racer.embedded_redis import EmbeddedRedis
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
@@ -616,3 +617,11 @@ def scale_summary(result: dict[str, Any]) -> str:
         f"growing at {'-' if grows is None else grows} workers; the trainer bounds it from "
         f"{'-' if bound is None else bound} workers ({result['cpu']}, {result['cores']} cores)"
     )
+
+
+def command(
+    counts: list[int], seconds: float, rate: float | None, settings: ScaleSettings, processes: int | None
+) -> Report:
+    """``racer bench scale``: the levels' table and the summary line."""
+    result = bench_scale(counts, seconds, rate, settings, processes)
+    return Report(result, [scale_table(result), scale_summary(result)])

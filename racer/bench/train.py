@@ -27,10 +27,12 @@ from typing import Any
 
 import numpy as np
 from rich.console import Console
+from rich.table import Table
 
 from common.config import EnvConfig, RunConfig
 from common.defaults import DEFAULT_TRACK
 from model_store import LocalStore, RunStore
+from racer.bench import Report
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
 from racer.runconfig import build_run
@@ -325,3 +327,30 @@ def _report(result: LapRun, settings: BenchTrainSettings, progress: Console | No
     progress.print(
         f"seed {result.seed} {result.system}: {what} ({result.batch_steps} steps per update; run {result.wall_s:.0f} s)"
     )
+
+
+def command(settings: BenchTrainSettings, progress: Console | None = None) -> Report:
+    """``racer bench train``: check the run's files and the SB3 install, train, and compare racer with SB3 PPO."""
+    from common.config import check_precision
+    from common.errors import OptionError
+
+    check_precision(settings.precision)
+    build_run("bench-check", track=settings.track, hyperparams=settings.hyperparams)  # bad files fail here, in one line
+    if settings.sb3:
+        try:
+            import stable_baselines3  # noqa: F401
+        except ImportError:
+            raise OptionError("--sb3 needs Stable-Baselines3: pip install 'racer[bench]' (or pass --no-sb3)") from None
+    result = bench_train(settings, progress)
+    table = Table("figure", "racer", "SB3 PPO")
+    for label, key in (("time to lap s (median)", "time_to_lap_s"), ("env steps to lap", "env_steps_to_lap")):
+        table.add_row(label, _whole(result.get(key)), _whole(result.get(f"sb3_{key}")))
+    table.add_row("seeds lapped", str(result.get("lapped")), str(result.get("sb3_lapped", "-")))
+    shown: list[Table | str] = [table]
+    if "speedup_vs_sb3" in result:
+        shown.append(f"racer reaches a robust lap {result['speedup_vs_sb3']:.2f}× as fast as SB3 PPO")
+    return Report(result, shown)
+
+
+def _whole(value: float | None) -> str:
+    return "-" if value is None else f"{value:.0f}"

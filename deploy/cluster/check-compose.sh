@@ -1,16 +1,16 @@
 #!/usr/bin/env bash
 # docker-compose.yml for real, from nothing, on this machine: builds the images (racer's and the stand-ins of
-# deploy/compose.test.yml), `WORKERS=3 docker compose up -d`, waits for two checkpoints in the bucket, scales to 5
+# deploy/cluster/compose.test.yml), `WORKERS=3 docker compose up -d`, waits for two checkpoints in the bucket, scales to 5
 # workers and sees them live in `racer status`, kills a worker's process (training goes on, the restart policy
 # brings it back), lists the checkpoints with `racer models ls`, takes everything down and up again and sees the
 # run resume from its latest checkpoint, then removes all it created. Exits 0 only when every check held; prints
 # its figures (time of each phase, total) last. All traffic stays on loopback. docs/docker.md describes it.
 set -euo pipefail
-# shellcheck source=deploy/docker-test-lib.sh
+# shellcheck source=deploy/cluster/docker-test-lib.sh
 . "$(dirname "$0")/docker-test-lib.sh"
 
 usage() {
-    echo "Usage: deploy/check-compose.sh [options]"
+    echo "Usage: deploy/cluster/check-compose.sh [options]"
     usage_common
 }
 parse_common "$@"
@@ -20,7 +20,7 @@ PROJECT=racer-check-$$
 LOG=$(mktemp)
 dc() {
     timeout "${DC_TIMEOUT:-300}" "${COMPOSE[@]}" --env-file "$ENV_FILE" -p "$PROJECT" \
-        -f "$ROOT/docker-compose.yml" -f "$ROOT/deploy/compose.test.yml" "$@"
+        -f "$ROOT/docker-compose.yml" -f "$ROOT/deploy/cluster/compose.test.yml" "$@"
 }
 containers() {  # containers of a service of this project (compose v1 and v2 label them alike)
     docker ps -aq --filter "label=com.docker.compose.project=$PROJECT" --filter "label=com.docker.compose.service=$1"

@@ -15,6 +15,7 @@ from rich.console import Console
 
 from common.bus import Bus
 from common.defaults import STRAIGHT_TRACK
+from racer.bench import Report, figures_table
 from racer.embedded_redis import EmbeddedRedis
 from racer.launcher import TrainOptions, run_train
 from racer.runconfig import build_run
@@ -97,3 +98,10 @@ def bench_soak(
         ),
         "samples": s,
     }
+
+
+def command(seconds: float, workers: int, track: str, stream_maxlen: int) -> Report:
+    """``racer bench soak``: a run of ``seconds``; its figures printed, its samples in the JSON too."""
+    result = bench_soak(seconds, workers, track, stream_maxlen)
+    summary = {k: v for k, v in result.items() if k != "samples"}
+    return Report(result, [figures_table(summary, "{:.3f}")])

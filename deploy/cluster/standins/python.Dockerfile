@@ -1,5 +1,5 @@
 # Stand-in for python:3.11-slim, built from a local Debian base where no image registry can be reached
-# (deploy/check-compose.sh makes the base with debootstrap). Debian bookworm's Python is 3.11, like the
+# (deploy/cluster/check-compose.sh makes the base with debootstrap). Debian bookworm's Python is 3.11, like the
 # official image's; a virtual environment first on PATH gives the same `python` and `pip` commands.
 ARG BASE_IMAGE=racer-base:bookworm
 FROM ${BASE_IMAGE}

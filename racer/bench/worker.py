@@ -1,6 +1,6 @@
 """``racer bench worker``: a rollout worker's env steps per second on one core, for K envs per worker.
 
-One process on one core (``sim.bench.pin_to_one_core``: one PyTorch thread, single-threaded OpenCV) and no Redis:
+One process on one core (``racer.bench.env.pin_to_one_core``: one PyTorch thread, single-threaded OpenCV) and no Redis:
 the worker's own collect loop (``rollout_worker.worker.Rollouts.collect``: the K envs' steps, one batched forward
 pass with sampling per step, frame stacks, sim-trace rows, the segments) on the default track, acting with a freshly
 built default policy through the worker's acting copy (ONNX Runtime, ``rollout_worker/onnx_policy.py``; ``acting``
@@ -11,7 +11,7 @@ Per K: env steps per second of the worker's core, its speed-up over the first K 
 runs made back to back) and where a step's time goes, in µs per env step: ``act`` (the
 batched forward passes and sampling, including the value of each segment's last observation), ``env``
 (``env.step``: physics, camera, task, reward function) and ``bookkeeping`` (the rest of ``collect``). Beside them:
-the env's own parts (``sim.bench.env_parts_us``) and the forward pass alone per batch size, PyTorch against ONNX
+the env's own parts (``racer.bench.env.env_parts_us``) and the forward pass alone per batch size, PyTorch against ONNX
 Runtime, with how far apart their outputs are.
 """
 
@@ -23,12 +23,14 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
+from rich.table import Table
 
 from common.defaults import DEFAULT_TRACK
+from racer.bench import Report
+from racer.bench.env import env_parts_us, pin_to_one_core
 from racer.runconfig import build_run
 from rollout_worker.onnx_policy import Actor, OnnxPolicy, acting_copy
 from rollout_worker.worker import Rollouts, segment_worker_ids
-from sim.bench import env_parts_us, pin_to_one_core
 from trainer.peak import cpu_model
 
 ACT_CALLS = 20
@@ -132,3 +134,39 @@ def act_ms(model: torch.nn.Module, batches: Sequence[int], repeats: int) -> dict
         for name in actors:
             out[name][str(b)] = statistics.median(times[name])
     return out
+
+
+def command(ks: list[int], seconds: float, repeats: int, track: str, acting: str) -> Report:
+    """``racer bench worker``: check K (distinct, 1 to MAX_ENVS_PER_WORKER) and ``acting`` (onnx or torch), time the
+    worker at each K and report where a step's time goes."""
+    from common.config import MAX_ENVS_PER_WORKER
+    from common.errors import OptionError
+
+    bad = [k for k in ks if not 1 <= k <= MAX_ENVS_PER_WORKER]
+    if bad or len(set(ks)) != len(ks):
+        given = ",".join(str(k) for k in ks)
+        raise OptionError(f"--envs-per-worker takes distinct integers from 1 to {MAX_ENVS_PER_WORKER} (got {given!r})")
+    if acting not in ("onnx", "torch"):
+        raise OptionError(f"--acting must be onnx or torch (got {acting!r})")
+    result = bench_worker(ks, seconds, repeats, track, acting)
+    table = Table("K", "env steps/s (median)", f"vs K={ks[0]}", "act µs/step", "env µs/step", "bookkeeping µs/step")
+    for k, r in result["per_k"].items():
+        us = r["us_per_step"]
+        table.add_row(
+            k,
+            f"{r['steps_per_s']:.0f}",
+            f"{r['speedup_vs_first']:.2f}×",
+            f"{us['act']:.0f}",
+            f"{us['env']:.0f}",
+            f"{us['bookkeeping']:.0f}",
+        )
+    act = result["act_ms"]
+    return Report(
+        result,
+        [
+            table,
+            "forward pass + sampling, ms per batch (torch / onnxruntime): "
+            + ", ".join(f"B={b} {act['torch'][b]:.2f} / {act['onnxruntime'][b]:.2f}" for b in act["torch"]),
+            f"acting with {result['acting']} on {result['machine']['cpu']}",
+        ],
+    )

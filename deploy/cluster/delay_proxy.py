@@ -1,9 +1,9 @@
 """A TCP proxy that adds latency: each chunk of bytes is forwarded ``delay ± jitter`` ms after it arrived, in order.
 
-For testing racer over a slow network where the kernel has no ``netem`` qdisc (``deploy/check-hosts.sh`` runs one
-in each worker host's network namespace, in front of Redis and of the S3 server)::
+For testing racer over a slow network where the kernel has no ``netem`` qdisc (``deploy/cluster/check-hosts.sh``
+runs one in each worker host's network namespace, in front of Redis and of the S3 server)::
 
-    python deploy/delay_proxy.py --listen 127.0.0.1:6379 --target 10.231.0.1:6379 --delay-ms 50 --jitter-ms 10
+    python deploy/cluster/delay_proxy.py --listen 127.0.0.1:6379 --target 10.231.0.1:6379 --delay-ms 50 --jitter-ms 10
 
 Each direction of each connection is delayed on its own; a chunk never overtakes the one before it (its due time is
 at least the previous chunk's), so the byte stream is unchanged. Bandwidth and loss are left to the kernel (``tc``,

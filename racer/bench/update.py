@@ -18,9 +18,11 @@ import statistics
 import time
 
 import torch
+from rich.table import Table
 from torch.profiler import ProfilerActivity, profile
 
 from common.policy import build_policy
+from racer.bench import Report
 from trainer.peak import GEMM_SIZE, Gemm, peak_precisions, update_flops
 from trainer.ppo import PPOBatch, minibatch_step
 from trainer.precision import fastest, precision_candidates, time_steps
@@ -166,3 +168,39 @@ def breakdown(precision: str, threads: int = 2, batch: int = 64, steps: int = 10
         "gemm_ops": gemm_ops,
         "other_ops": [o for o in ops if o["op"] not in GEMM_OPS][:top],
     }
+
+
+def command(threads: int, batch: int, repeats: int, breakdown: bool) -> Report:
+    """``racer bench update``: the settings' table, the GEMM peak, what ``auto`` picks and, with ``breakdown``, the
+    profiled operators of ``auto``'s step."""
+    result = bench_update(threads, batch, repeats=repeats, with_breakdown=breakdown)
+    table = Table("setting", "ms per minibatch (median)", "speed-up vs fp32 + Adam loop", "GFLOP/s", "of GEMM peak")
+    for name, ms in result["ms_per_step"].items():
+        fraction = result["fraction_of_peak_by_setting"][name]
+        share = "- (bf16 emulated)" if fraction is None else f"{fraction:.2f}"
+        table.add_row(
+            name, f"{ms:.1f}", f"{result['speedup_vs_fp32_loop'][name]:.2f}×", f"{result['gflops'][name]:.0f}", share
+        )
+    peaks = ", ".join(f"{p} {g:.0f}" for p, g in result["peak_gflops"].items() if g is not None)
+    shown: list[Table | str] = [
+        table,
+        f"{result['update_gflop']:.2f} GFLOP a minibatch step; GEMM peak ({result['gemm_size']}², "
+        f"{threads} threads): {peaks} GFLOP/s",
+        f"racer train --precision auto trains in {result['auto']} on this machine, at "
+        f"{result['fraction_of_peak']:.2f} of its GEMM peak",
+    ]
+    if breakdown:
+        parts = result["breakdown"]
+        ops = Table("operator (profiled)", "input shapes", "ms a step")
+        for kind in ("gemm_ops", "other_ops"):
+            for op in parts[kind][:8]:
+                ops.add_row(op["op"], " ".join(str(tuple(s)) for s in op["shapes"]), f"{op['ms']:.2f}")
+            ops.add_section()
+        shown += [
+            ops,
+            f"{parts['precision']} step {parts['step_ms']:.1f} ms: GEMM operators {parts['gemm_ms']:.1f} ms "
+            f"at {parts['gemm_fraction_of_peak']:.2f} of the GEMM peak, the rest {parts['other_ms']:.1f} ms "
+            "(the profiler slows large copies: the other operators' figures are for their order only); with every "
+            f"GEMM at the peak the step would get {parts['fraction_if_gemms_at_peak']:.2f} of it",
+        ]
+    return Report(result, shown)

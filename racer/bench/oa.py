@@ -4,7 +4,7 @@ For each seed, one after the other: ``racer train`` (embedded Redis, 2 workers, 
 for a fixed budget on racer_loop (racer's default track) with the STEREO_CAMERAS sensor, the shipped
 ``object_avoidance`` reward example and a 10-action space for driving round objects (:data:`OA_ACTIONS`: five
 steering angles from -30° to 30° at 1 and 2 m/s), racer's stability knobs on as in ``racer bench race``,
-without its pace rule (:data:`racer.bench_race.GUARD_HYPERPARAMS`).
+without its pace rule (:data:`racer.bench.race.GUARD_HYPERPARAMS`).
 
 The race (:func:`oa_race`): OBJECT_AVOIDANCE with 3 boxes placed at random every episode
 (``randomize_obstacle_locations``), or, with ``race_type`` HEAD_TO_BOT, 2 bot cars at 0.5 m/s starting at random
@@ -38,7 +38,8 @@ from common.defaults import DEFAULT_TRACK
 from common.race import HeadToBotConfig, ObjectAvoidanceConfig, RaceConfig, RaceType
 from common.sensors import STEREO_CAMERAS
 from model_store import RunStore
-from racer.bench_race import GUARD_HYPERPARAMS, median_known, train_from_scratch
+from racer.bench import Report
+from racer.bench.race import GUARD_HYPERPARAMS, median_known, train_from_scratch
 from racer.runconfig import build_run
 from sim.reward import example_path
 from sim.task import Status
@@ -220,3 +221,36 @@ def plot_oa(result: dict[str, Any], out_png: str | Path) -> Path:
         f"{result['minutes']:g} min per seed"
     )
     return save_figure(fig, out_png)
+
+
+def command(
+    race_type: str,
+    seeds: list[int],
+    minutes: float,
+    track: str,
+    workers: int,
+    eval_trials: int,
+    png: Path | None = None,
+    progress: Console | None = None,
+) -> Report:
+    """``racer bench oa``: check the race and the track before any training, run the seeds, plot them to ``png``
+    if given and report the time to robust and the crash rate."""
+    from common.errors import OptionError
+    from sim.track import load_track
+
+    try:
+        race = oa_race(race_type)
+    except ValueError:
+        raise OptionError(f"--race-type {race_type!r}: racer bench oa races OBJECT_AVOIDANCE or HEAD_TO_BOT") from None
+    load_track(track)  # a bad track fails now, not after the first seed's training
+    settings = BenchOASettings(seeds, minutes, race.race_type.value, track, workers, eval_trials)
+    result = bench_oa(settings, progress)
+    if png:
+        plot_oa(result, png)
+    crash = result["final_crash_rate"]
+    line = (
+        f"{result['race_type']}: median time to robust {result['time_to_robust_s']} s "
+        f"({result['robust_seeds']} of {len(result['seeds'])} seeds robust), final completion "
+        f"{result['final_completion']:.2f}, final crash rate {'-' if crash is None else f'{crash:.2f}'}"
+    )
+    return Report(result, [line])

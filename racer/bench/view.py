@@ -25,6 +25,7 @@ from typing import Any
 import torch
 
 from common.defaults import DEFAULT_TRACK
+from racer.bench import Report
 from racer.embedded_redis import EmbeddedRedis
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
@@ -195,3 +196,9 @@ def report_lines(result: dict[str, Any]) -> list[str]:
         f"{result['nobody_vs_no_publisher_cpu']:.3f} CPU"
     )
     return lines
+
+
+def command(seconds: float, repeats: int, track: str) -> Report:
+    """``racer bench view``: each condition's medians and the two ratios, a line each."""
+    result = bench_view(seconds, repeats, track)
+    return Report(result, list(report_lines(result)))

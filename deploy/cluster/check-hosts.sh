@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # Workers on other hosts, over a bad network: a real check with Linux network namespaces (root only).
 #
-#   sudo deploy/check-hosts.sh [--json FILE] [--keep DIR] [--cut link|drop]
+#   sudo deploy/cluster/check-hosts.sh [--json FILE] [--keep DIR] [--cut link|drop]
 #
 # Three namespaces stand for three hosts. The server host runs redis-server (with a password), moto's S3 server and
 # `racer trainer`, all bound to its address on a bridge; each of two worker hosts runs one `racer worker` and reaches
-# Redis and S3 through deploy/delay_proxy.py on its own loopback. Each worker host hangs on the bridge by a veth pair.
+# Redis and S3 through deploy/cluster/delay_proxy.py on its own loopback. Each worker host hangs on the bridge by a
+# veth pair.
 #
 #   worker host 0 (10.231.0.2) eth0 ==veth== p0 \
 #                                                br0 10.231.0.1  server host: redis :6379, S3 :5000, trainer
@@ -14,21 +15,25 @@
 # Phases: training on plain links (unshaped: the proxies forward at once), then on shaped ones (tc tbf 20 Mbit/s on
 # both ends of each worker link, 1 % random loss into each side with iptables' statistic match, 50 ± 10 ms each way
 # in the proxies: this kernel has no netem), then worker host 1 cut off for 20 s while it is sending a segment
-# (--cut link: its interface down; --cut drop: every packet dropped, silently, on both sides) and healed. deploy/hosts_probe.py samples Redis and the
-# links' byte counters all along and checks: training went on through the cut, the cut worker pushed segments again
-# within 10 s of the heal and caught up with the policy that was current at the heal, every segment sent was counted once (accepted or
-# dropped by reason; a second copy of a half-sent push that TCP delivers after the heal is dropped as `duplicate`),
-# none in part, and the cut worker's log says it was retrying (with --cut drop too: redis-py retries once, then the
-# error reaches racer's Outage, which backs off and logs). Each run takes about 3 minutes (RACER_HOSTS_PHASE_S shortens the two 30 s windows). Exits 0 only if every check held; the figures
-# come last, as `name: value` lines (and as JSON with --json).
+# (--cut link: its interface down; --cut drop: every packet dropped, silently, on both sides) and healed.
+# deploy/cluster/hosts_probe.py samples Redis (through common/bus.py) and the links' byte counters all along and
+# checks: training went on through the cut, the cut worker pushed segments again within 10 s of the heal and caught
+# up with the policy that was current at the heal, every segment sent was counted once (accepted or dropped by
+# reason; a second copy of a half-sent push that TCP delivers after the heal is dropped as `duplicate`), none in
+# part, and the cut worker's log says it was retrying (with --cut drop too: redis-py retries once, then the error
+# reaches racer's Outage, which backs off and logs). Each run takes about 3 minutes (RACER_HOSTS_PHASE_S shortens
+# the two 30 s windows). Exits 0 only if every check held; the figures come last, as `name: value` lines (and as
+# JSON with --json).
 #
 # Traffic goes only to loopback and to the 10.231.0.0/24 addresses made here: the namespaces have no other route,
 # and an iptables OUTPUT rule in each drops anything else. Everything made (processes, namespaces with their links
 # and rules, the temporary folder) is removed on any exit; the script stops itself after $RACER_HOSTS_MAX_S seconds.
 set -euo pipefail
 
-ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 PY=${PYTHON:-$ROOT/.venv/bin/python}
+# racer, the probe (it reads Redis through common/bus.py) and the proxies from this checkout, whatever the venv has.
+export PYTHONPATH=$ROOT${PYTHONPATH:+:$PYTHONPATH}
 MAX_S=${RACER_HOSTS_MAX_S:-360}
 PHASE_S=${RACER_HOSTS_PHASE_S:-30}
 CUT_S=20
@@ -56,7 +61,7 @@ while [[ $# -gt 0 ]]; do
 done
 [[ $CUT_MODE == link || $CUT_MODE == drop ]] || { echo "--cut is link or drop" >&2; exit 2; }
 [[ $(id -u) == 0 ]] || { echo "check-hosts.sh needs root (network namespaces, tc, iptables)" >&2; exit 2; }
-for tool in ip tc iptables timeout; do
+for tool in ip tc iptables timeout chrt; do
   command -v $tool >/dev/null || { echo "check-hosts.sh needs $tool" >&2; exit 2; }
 done
 [[ -x $PY ]] || { echo "no python at $PY (set PYTHON)" >&2; exit 2; }
@@ -120,7 +125,7 @@ start() {
   PIDS+=($!)
 }
 alive() { kill -0 "$1" 2>/dev/null; }
-probe() { "$PY" "$ROOT/deploy/hosts_probe.py" "$@"; }
+probe() { "$PY" "$ROOT/deploy/cluster/hosts_probe.py" "$@"; }
 
 # A run killed with SIGKILL (a CI runner's or a session's end) never reaches its trap and leaves its namespaces
 # behind. Remove those of runs whose script is gone and that hold no process; a live run's are left alone.
@@ -223,7 +228,7 @@ RACER_REDIS_URL=$SERVER_REDIS start "$SRV" "$WORK/trainer.log" timeout -s TERM "
   --run-id "$RUN_ID" --track racer_loop --hyperparams "$WORK/hyperparameters.json" \
   --store "$STORE" --s3-endpoint "$S3_URL" --time-limit "${MAX_S}s"
 TRAINER=${PIDS[-1]}
-RACER_REDIS_URL=$SERVER_REDIS start "$SRV" "$WORK/probe.log" "$PY" "$ROOT/deploy/hosts_probe.py" sample \
+RACER_REDIS_URL=$SERVER_REDIS start "$SRV" "$WORK/probe.log" "$PY" "$ROOT/deploy/cluster/hosts_probe.py" sample \
   --run-id "$RUN_ID" --out "$SAMPLES" --ifaces p0,p1
 SAMPLER=${PIDS[-1]}
 
@@ -232,10 +237,10 @@ PROXIES=()
 WORKER_PIDS=()
 for k in 0 1; do
   ns=${NSW[$k]}
-  start "$ns" "$WORK/proxy-redis-$k.log" "$PY" "$ROOT/deploy/delay_proxy.py" --off \
+  start "$ns" "$WORK/proxy-redis-$k.log" "$PY" "$ROOT/deploy/cluster/delay_proxy.py" --off \
     --listen "127.0.0.1:$REDIS_PORT" --target "$SERVER:$REDIS_PORT" --delay-ms 50 --jitter-ms 10
   PROXIES+=("${PIDS[-1]}")
-  start "$ns" "$WORK/proxy-s3-$k.log" "$PY" "$ROOT/deploy/delay_proxy.py" --off \
+  start "$ns" "$WORK/proxy-s3-$k.log" "$PY" "$ROOT/deploy/cluster/delay_proxy.py" --off \
     --listen "127.0.0.1:$S3_PORT" --target "$SERVER:$S3_PORT" --delay-ms 50 --jitter-ms 10
   PROXIES+=("${PIDS[-1]}")
 done
@@ -293,13 +298,16 @@ event shaped_end
 CUT_NS=${NSW[$CUT_WORKER]}
 # Cut it while it sends a segment (a burst on its link), from the process that sees the burst, so that the push is
 # left half sent: the worst moment for losing or doubling a segment; the worker's Redis client then times out (10 s).
+# The rest of the segment takes ~10 ms on the link, so the watcher and the cut run at a real-time priority: on a busy
+# machine a normal process was scheduled too late, the push had been answered, the cut caught the worker polling the
+# policy, and after the heal it downloaded the newer policy (~12 MB on the shaped link) before it pushed again.
 if [[ $CUT_MODE == link ]]; then
   cut_cmd=(ip -n "$CUT_NS" link set eth0 down)
 else
   cut_cmd=(sh -c "ip netns exec $CUT_NS iptables -I INPUT 1 -i eth0 -j DROP &&
     ip netns exec $SRV iptables -I INPUT 1 -s $NET.$((CUT_WORKER + 2)) -j DROP")
 fi
-in_ns "$SRV" "$PY" "$ROOT/deploy/hosts_probe.py" wait-upload --iface "p$CUT_WORKER" --timeout 60 \
+in_ns "$SRV" chrt -f 50 "$PY" "$ROOT/deploy/cluster/hosts_probe.py" wait-upload --iface "p$CUT_WORKER" --timeout 60 \
   --events "$EVENTS" --event cut --then "${cut_cmd[@]}"
 log "cut"
 sleep "$CUT_S"

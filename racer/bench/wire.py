@@ -7,7 +7,7 @@ driven by the untrained default network, episodes reset as they end. The
 figures compare schema 1 (every array raw, ``schema1_bytes``) with today's ``encode_segment``; ``codecs`` compares
 compressions of the same distinct frames. Times are CPU time of this process (``time.process_time``: a shared
 machine's other work does not count), per env step, medians over repeats. ``bench_wire()`` returns a JSON-ready
-dict; ``python -m racer.bench_wire`` prints it.
+dict; ``python -m racer.bench.wire`` prints it.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
+from rich.table import Table
 
 from common.config import EnvConfig, PolicyConfig, RandomizationConfig, RunConfig
 from common.hyperparams import Hyperparameters
@@ -33,6 +34,7 @@ from common.policy import (
 )
 from common.protocol import Segment, decode_segment, encode_segment, frame_table
 from common.sensors import LidarSpec, observation_spec
+from racer.bench import Report
 from rollout_worker.worker import Rollouts
 from trainer.peak import cpu_model
 
@@ -62,7 +64,7 @@ def driven_segments(
     """``segments`` consecutive segments of ``steps`` env steps, collected by the rollout worker's own loop
     (``rollout_worker.worker.Rollouts``, one env) at version 0 of the default run with ``sensors``, ``stack_size``
     and ``randomization`` (RandomizationConfig fields), driven by the untrained network."""
-    from sim.bench import write_sensor_space
+    from racer.bench.env import write_sensor_space
 
     dr = RandomizationConfig.model_validate(randomization or {})
     with tempfile.TemporaryDirectory(prefix="racer-bench-wire-") as folder:
@@ -260,6 +262,27 @@ def bench_wire(segments: int = 8, steps: int = 32, repeats: int = 5, seed: int =
         "codecs_default": codec_figures(default, repeats),
         "policy": policy_figures(repeats),
     }
+
+
+def command(segments: int, steps: int, repeats: int) -> Report:
+    """``racer bench wire``: each run's bytes and codec cost per env step, and the policy download."""
+    result = bench_wire(segments, steps, repeats)
+    table = Table("run", "bytes/step before", "bytes/step", "ratio", "encode µs/step", "decode µs/step")
+    for name, f in result["segments"].items():
+        table.add_row(
+            name,
+            f"{f['bytes_per_step_before']:,.0f}",
+            f"{f['bytes_per_step']:,.0f}",
+            f"{f['ratio']:.1f}",
+            f"{f['encode_us_per_step']:.0f}",
+            f"{f['decode_us_per_step']:.0f}",
+        )
+    policy = result["policy"]
+    line = (
+        f"policy version: checkpoint {policy['checkpoint_bytes']:,} bytes, acting copy {policy['acting_bytes']:,} "
+        f"bytes ({policy['ratio']:.2f}x smaller); machine {result['machine']}"
+    )
+    return Report(result, [table, line])
 
 
 if __name__ == "__main__":

@@ -1,16 +1,16 @@
 #!/usr/bin/env bash
 # docker-compose.yml on a one-node Docker Swarm, for real, from nothing: builds the images (docker stack deploy
 # ignores build:), `docker swarm init` on loopback, `docker stack deploy` of docker-compose.yml (depends_on in its
-# short form: the only change Swarm needs) with deploy/compose.test.yml and deploy/swarm.test.yml, waits for
+# short form: the only change Swarm needs) with deploy/cluster/compose.test.yml and deploy/cluster/swarm.test.yml, waits for
 # checkpoints and WORKERS=3 live workers, `docker service scale` to 5 and sees 5 live workers and training going on,
 # then `docker stack rm`, `docker swarm leave --force` and removes all it created. It refuses to run on a node that
 # is already part of a swarm. Exits 0 only when every check held; prints its figures last. docs/docker.md.
 set -euo pipefail
-# shellcheck source=deploy/docker-test-lib.sh
+# shellcheck source=deploy/cluster/docker-test-lib.sh
 . "$(dirname "$0")/docker-test-lib.sh"
 
 usage() {
-    echo "Usage: deploy/check-swarm.sh [options]"
+    echo "Usage: deploy/cluster/check-swarm.sh [options]"
     usage_common
 }
 parse_common "$@"
@@ -94,8 +94,8 @@ phase "swarm init, stack deploy (WORKERS=3) until 2 checkpoints"
 GWBRIDGE_BEFORE=$(docker network ls -q --filter name=^docker_gwbridge$)
 timeout 60 docker swarm init --advertise-addr 127.0.0.1 --listen-addr 127.0.0.1:2377 >/dev/null
 SWARM_STARTED=1
-timeout 120 docker stack deploy --resolve-image never -c "$STACK_FILE" -c "$ROOT/deploy/compose.test.yml" \
-    -c "$ROOT/deploy/swarm.test.yml" "$STACK" || fail "docker stack deploy failed"
+timeout 120 docker stack deploy --resolve-image never -c "$STACK_FILE" -c "$ROOT/deploy/cluster/compose.test.yml" \
+    -c "$ROOT/deploy/cluster/swarm.test.yml" "$STACK" || fail "docker stack deploy failed"
 wait_until "checkpoint version 2 in s3://$RACER_BUCKET" 300 checkpoints_at_least 2
 wait_until "3 live workers in racer status" 120 workers_exactly 3
 figure "checkpoints after deploy" "$(checkpoint_versions)"

@@ -19,11 +19,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from rich.table import Table
 
 from common.action_space import default_action_space, load_action_space
 from common.config import EnvConfig
 from common.race import HeadToBotConfig, ObjectAvoidanceConfig, RaceConfig, RaceType
 from common.sensors import lidar_from_ranges, observation_spec
+from racer.bench import Report
 from sim.env import RacerEnv
 
 DEFAULT_OBJECTS: dict[RaceType, int] = {RaceType.OBJECT_AVOIDANCE: 6, RaceType.HEAD_TO_BOT: 3}
@@ -194,3 +196,55 @@ def bench_env(
         result[f"{name}_us_per_step"] = None if values[0] is None else statistics.median(values)
     result["machine"] = {"cpu": platform.processor() or platform.machine(), "core": core, "cores": os.cpu_count()}
     return result
+
+
+_ENV_PARTS = ("physics", "camera", "task", "reward")
+"""The parts reported for the plain env (no sensor list, no race)."""
+
+
+def command(
+    track: str,
+    steps: int,
+    repeats: int,
+    camera: str,
+    car_calibration: str | None,
+    sensor: str | None,
+    race_type: str | None,
+    obstacles: int | None,
+) -> Report:
+    """``racer bench env``: check the options (``sensor`` a comma-separated model_metadata sensor list), time the
+    env and report its rate and parts."""
+    from common.car_calibration import CarCalibration, load_car
+    from common.errors import OptionError
+    from common.sensors import sensor_problem
+
+    sensors = [s.strip() for s in sensor.split(",") if s.strip()] if sensor is not None else None
+    if sensors is not None:
+        problem = sensor_problem(sensors) if sensors else "no sensor given"
+        if problem:
+            raise OptionError(f"--sensor {sensor!r}: {problem}")
+    race = None
+    if race_type is not None:
+        names = [t.value for t in RaceType]
+        if race_type.upper() not in names:
+            raise OptionError(f"--race-type {race_type!r} is not one of {', '.join(names)}")
+        if obstacles and race_type.upper() == RaceType.TIME_TRIAL:
+            raise OptionError("--obstacles needs --race-type OBJECT_AVOIDANCE or HEAD_TO_BOT")
+        race = race_config(race_type, obstacles)
+    elif obstacles is not None:
+        raise OptionError("--obstacles needs --race-type OBJECT_AVOIDANCE or HEAD_TO_BOT")
+    car = load_car(car_calibration) if car_calibration else CarCalibration()
+    config = EnvConfig(track=track, camera=camera, car=car)
+    result = bench_env(config, steps=steps, repeats=repeats, sensors=sensors, race=race)
+    table = Table("figure", "value")
+    table.add_row("env steps/s (median)", f"{result['steps_per_s']:.0f}")
+    table.add_row("runs", ", ".join(f"{r:.0f}" for r in result["steps_per_s_runs"]))
+    extended = "sensor" in result
+    if extended:
+        table.add_row("sensors", ", ".join(result["sensor"]))
+        table.add_row("race", f"{result['race_type']}, {result['objects']} objects")
+    parts = ("physics", "camera", "lidar", "objects", "task", "reward") if extended else _ENV_PARTS
+    for part in parts:
+        value = result[f"{part}_us_per_step"]
+        table.add_row(f"{part} µs/step", "-" if value is None else f"{value:.1f}")
+    return Report(result, [table])
