@@ -1,7 +1,9 @@
-"""racer.deploy: a trained policy on a car, without PyTorch at run time.
+"""racer.deploy: a trained policy to where users race it.
 
-``export`` writes a checkpoint as ONNX with model_metadata.json beside it (``racer export``); ``model_file``
-reads and stamps the model's ``racer`` metadata; ``runtime`` runs camera frames through the ONNX policy on one
-CPU thread (``racer car``); ``vehicle`` maps actions to servo and ESC outputs. ``cluster`` is apart: the test
-harness that runs racer's roles across containers and network links (not in the wheel). See ARCHITECTURE.md.
+Exporters (on the training machine, with PyTorch): ``export`` writes a checkpoint as ONNX with model_metadata.json
+beside it (``racer export``); ``deepracer_graph``, ``deepracer_format`` and ``importer`` write and read DeepRacer's
+own model formats (``racer export --format deepracer-car|deepracer-sim``, ``racer import``; TensorFlow, the
+``deepracer`` extra). ``car`` is what runs on the car without PyTorch: the model file, the camera-to-action loop and
+the servo calibration. ``cluster`` is apart: the test harness that runs racer's roles across containers and network
+links (not in the wheel). See ARCHITECTURE.md.
 """

@@ -21,7 +21,7 @@ import torch
 from common.action_space import ActionSpace
 from common.policy import ActorCritic, load_policy
 from common.sensors import LIDAR, SECTOR_LIDAR, STEREO_CAMERAS, ObsSpec
-from deploy.model_file import OBS_HEIGHT, OBS_WIDTH, stamp
+from deploy.car.model_file import OBS_HEIGHT, OBS_WIDTH, stamp
 from model_store import RunStore
 
 
@@ -87,7 +87,7 @@ def export_onnx(runs: RunStore, run_id: str, checkpoint: str | int, out: str | P
 
 
 def _preprocess(spec: ObsSpec) -> str:
-    """How the car builds the model's inputs, in words (the runtime does it: ``deploy/runtime.py``)."""
+    """How the car builds the model's inputs, in words (the runtime does it: ``deploy/car/runtime.py``)."""
     camera = "grayscale (OpenCV BGR2GRAY), resize to 160x120 (INTER_AREA), uint8, oldest frame first"
     if spec.camera == STEREO_CAMERAS:
         camera = "left and right cameras each " + camera + ", left then right channel per frame"

@@ -24,16 +24,16 @@ from common.defaults import DEFAULT_TRACK
 from common.framestack import FrameStack
 from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_to_bytes, load_policy
 from common.sensors import lidar_from_ranges, observation_spec
-from deploy.export import export_onnx
-from deploy.model_file import ExportError, model_info, model_observation
-from deploy.runtime import CsvSink, DeployError, Policy, drive, preprocess, preprocess_stereo
-from deploy.vehicle import (
+from deploy.car.model_file import ExportError, model_info, model_observation
+from deploy.car.runtime import CsvSink, DeployError, Policy, drive, preprocess, preprocess_stereo
+from deploy.car.vehicle import (
     VehicleCalibration,
     VehicleCalibrationError,
     load_vehicle_calibration,
     steering_output,
     throttle_output,
 )
+from deploy.export import export_onnx
 from model_store import RunStore, open_store
 from racer.runconfig import build_run
 from sim.env import RacerEnv
@@ -254,7 +254,7 @@ def test_runtime_and_export_refuse_bad_input_in_one_line(tmp_path):
 
 def test_the_runtime_needs_no_torch():
     """A car carries onnxruntime and OpenCV, not PyTorch: importing the runtime must not import torch."""
-    code = "import sys, deploy.runtime, deploy.vehicle; sys.exit('torch' in sys.modules)"
+    code = "import sys, deploy.car.runtime, deploy.car.vehicle; sys.exit('torch' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 
 

@@ -127,10 +127,10 @@ def car(
 ) -> None:
     """The on-car runtime: camera frames → policy (ONNX, one CPU thread) → vehicle calibration → motor commands.
 
-    No LIDAR / SECTOR_LIDAR models: racer has no LiDAR driver (deploy.runtime.drive takes a LidarSource).
+    No LIDAR / SECTOR_LIDAR models: racer has no LiDAR driver (deploy.car.runtime.drive takes a LidarSource).
     """
-    from deploy.runtime import CsvSink, Policy, drive
-    from deploy.vehicle import VehicleCalibration, load_vehicle_calibration
+    from deploy.car.runtime import CsvSink, Policy, drive
+    from deploy.car.vehicle import VehicleCalibration, load_vehicle_calibration
 
     calibration = load_vehicle_calibration(vehicle) if vehicle else VehicleCalibration()
     result = drive(Policy(model), source, calibration, CsvSink(out), max_frames, right_source=right_source)

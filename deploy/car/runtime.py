@@ -31,8 +31,8 @@ from common.action_space import ActionSpace
 from common.errors import UserError
 from common.framestack import FrameStack
 from common.sensors import STEREO_CAMERAS, check_lidar, lidar_from_ranges
-from deploy.model_file import OBS_HEIGHT, OBS_WIDTH, model_info, model_observation
-from deploy.vehicle import MotorCommand, VehicleCalibration, motor_command
+from deploy.car.model_file import OBS_HEIGHT, OBS_WIDTH, model_info, model_observation
+from deploy.car.vehicle import MotorCommand, VehicleCalibration, motor_command
 
 
 class DeployError(UserError, ValueError):
