@@ -30,7 +30,7 @@ import torch
 
 from common.bus import Bus
 from common.config import PretrainedError, RunConfig
-from common.hyperparams import check_cooldown
+from common.deadline import Deadline
 from common.policy import (
     ActorCritic,
     Precision,
@@ -72,8 +72,9 @@ class TrainerOptions:
     s3_endpoint: str | None = None
     resume: bool = False
     """Continue from the run's latest checkpoint instead of starting it."""
-    time_limit_s: float | None = None
-    """Stop after this many seconds of training, None = until stopped."""
+    deadline: Deadline | None = None
+    """When to stop (``common.deadline``: the run's one deadline, fixed as its roles started); None = until
+    stopped. The learning-rate cool-down counts back from it."""
     torch_threads: int = 1
     """Threads for PyTorch in the trainer (the workers use one each)."""
     run_files: dict[str, bytes] = field(default_factory=dict)
@@ -261,9 +262,6 @@ class Trainer:
         self.silent: dict[str, dict] = {}
         """Workers whose heartbeat expired: worker id → their last heartbeat."""
         self.hp = run.hyperparams
-        check_cooldown(self.hp.lr_cooldown, opts.time_limit_s)
-        self.deadline: float | None = None
-        """When ``run_forever`` stops for the time limit (``time.monotonic()``); None before it or without a limit."""
         self.version = 0
         self.stats = Stats()
         self.buffer: list[Segment] = []
@@ -433,9 +431,9 @@ class Trainer:
     # --- the loop -----------------------------------------------------------------------------
     def run_forever(self) -> None:
         """Read, train, publish until stopped or out of time."""
-        self.deadline = None if self.opts.time_limit_s is None else time.monotonic() + self.opts.time_limit_s
+        deadline = self.opts.deadline
         last_status = 0.0
-        while not self.stop.is_set() and (self.deadline is None or time.monotonic() < self.deadline):
+        while not self.stop.is_set() and (deadline is None or not deadline.passed()):
             self.redis_outage.call("read segments", lambda: self.read(block_ms=500))
             if self.ready():
                 self.train()
@@ -561,14 +559,13 @@ class Trainer:
 
     def learning_rate(self) -> float:
         """The learning rate of the next policy update: the schedule's value (``lr`` itself when constant, as in
-        DeepRacer), times the cool-down's factor in the last ``lr_cooldown`` of the time limit, times the rollbacks'
-        ``lr_scale``. The time limit counts from the start of ``run_forever``: under ``racer train`` the trainer's
-        own start-up (a few seconds) is spent before it, so the run is stopped a little before the cool-down's end."""
+        DeepRacer), times the cool-down's factor in the last ``lr_cooldown`` of the time limit (counted back from the
+        run's deadline, the one ``racer train`` stops every process at), times the rollbacks' ``lr_scale``."""
         hp = self.hp
         base = scheduled(hp.lr_schedule, hp.lr, hp.lr_final_fraction, self.stats.iteration, hp.schedule_updates)
-        if hp.lr_cooldown is not None and self.deadline is not None and self.opts.time_limit_s is not None:
-            left = self.deadline - time.monotonic()
-            base *= cooldown_factor(left, self.opts.time_limit_s, hp.lr_cooldown, hp.lr_final_fraction)
+        deadline = self.opts.deadline
+        if hp.lr_cooldown is not None and deadline is not None:
+            base *= cooldown_factor(deadline.left(), deadline.limit_s, hp.lr_cooldown, hp.lr_final_fraction)
         return base * self.stability.lr_scale
 
     def entropy_coef(self) -> float:

@@ -103,8 +103,8 @@ def loop(
     json_out: JsonOut = None,
 ) -> None:
     """End-to-end throughput (env steps/s consumed by the trainer), policy propagation and memory, per N workers."""
+    from common.deadline import parse_duration
     from racer.bench_loop import bench_loop
-    from racer.runconfig import parse_duration
 
     seconds = parse_duration(duration)
     counts = int_list(workers, "--workers")
@@ -145,8 +145,9 @@ def train(
 ) -> None:
     """Time and env steps from scratch to a robust lap (every evaluation lap completed), racer vs SB3 PPO."""
     from common.config import check_precision
+    from common.deadline import parse_duration
     from racer.bench_train import BenchTrainSettings, bench_train
-    from racer.runconfig import build_run, parse_duration
+    from racer.runconfig import build_run
 
     seed_numbers = int_list(seeds, "--seeds")
     check_precision(precision)
@@ -405,8 +406,8 @@ def soak(
     json_out: JsonOut = None,
 ) -> None:
     """A long racer train run sampling Redis memory, keys, the stream and each role's memory: is it bounded?"""
+    from common.deadline import parse_duration
     from racer.bench_soak import bench_soak
-    from racer.runconfig import parse_duration
 
     result = bench_soak(parse_duration(duration), workers, track, stream_maxlen)
     summary = {k: v for k, v in result.items() if k != "samples"}
