@@ -29,15 +29,8 @@ from racer.runconfig import build_run, open_run, trainer_role_run
 from rollout_worker.worker import RolloutWorker
 from tests.test_training_loop import fill, start
 from trainer.evaluator import evaluation_summary, save_evaluation, score
-from trainer.process import (
-    CollapseWatch,
-    Stability,
-    Trainer,
-    TrainerOptions,
-    is_collapsed,
-    is_slower,
-    rolled_back_lr_scale,
-)
+from trainer.guard import CollapseWatch, Stability, is_collapsed, is_slower, rolled_back_lr_scale
+from trainer.process import Trainer, TrainerOptions
 
 # --- the rule ------------------------------------------------------------------------------------------------
 
@@ -215,6 +208,7 @@ def test_a_collapse_rolls_back_to_the_best_weights_and_optimizer_at_a_lower_lr(
 
     # Switched on, the loop rolls back: v4 is v1's weights and optimizer state.
     trainer.hp.collapse_guard = True
+    trainer.opts.deadline = Deadline.after(1.2)
     with caplog.at_level(logging.WARNING, logger="racer.trainer"):
         trainer.run_forever()
     assert trainer.version == 4
@@ -296,6 +290,7 @@ def test_the_cool_down_lowers_the_learning_rate_towards_the_time_limit(redis_url
     path.write_text(json.dumps({"lr": 0.001, "lr_cooldown": 0.5, "lr_final_fraction": 0.1}))
     run, files = build_run(run_id, track=STRAIGHT_TRACK, hyperparams=str(path))
     trainer = Trainer(run, TrainerOptions(redis_url, str(tmp_path / "store"), run_files=files))
+    trainer.start()
     assert trainer.learning_rate() == pytest.approx(0.001)  # no deadline: no cool-down
     trainer.opts.deadline = Deadline(at=time.time() + 80.0, limit_s=100.0)
     assert trainer.learning_rate() == pytest.approx(0.001)
