@@ -26,9 +26,6 @@ from common.race import RaceConfig, RaceType
 from model_store import RunStore, StoreError
 from racer.drfc import DrfcImport, WorkerSettings, read_worker_settings
 from racer.options import RunOptions
-from sim.env import preflight_reward
-from sim.reward import example_path
-from sim.track import load_track
 
 
 def build_run(
@@ -39,6 +36,12 @@ def build_run(
 
     ``notes`` (if given) collects one line per thing in the files that racer accepts but does not use.
     """
+    # The simulator is imported here, not with the module: the trainer role reads its run from racer train's
+    # --config through this module and builds no env.
+    from sim.env import preflight_reward
+    from sim.reward import example_path
+    from sim.track import load_track
+
     opts = RunOptions.model_validate({**(opts or RunOptions()).model_dump(), **options}).with_defaults()
     track, action_space, hyperparams = str(opts.track), opts.action_space, opts.hyperparams
     load_track(track)
@@ -94,6 +97,8 @@ def build_run(
 def worker_envs(env: EnvConfig, settings: list[WorkerSettings | None], notes: list[str] | None) -> list[WorkerEnv]:
     """Each worker's world from what its file changes (None: the run's ``env``); a track that does not load or a
     randomization the run's cannot take is a one-line error naming the worker's file."""
+    from sim.track import load_track
+
     out: list[WorkerEnv] = []
     for item in settings:
         if item is None:

@@ -51,6 +51,34 @@ def test_the_trainer_imports_nothing_from_sim() -> None:
     assert done.stdout.strip() == "[]"
 
 
+def test_the_trainer_role_under_racer_train_imports_nothing_from_sim(tmp_path: Path) -> None:
+    """``racer trainer --config --files --options`` as ``racer train`` starts it, up to ``run_trainer``."""
+    from racer.options import RunOptions
+    from racer.runconfig import build_run
+
+    run, files = build_run("role", track=STRAIGHT_TRACK)
+    (tmp_path / "run.json").write_text(run.model_dump_json())
+    (tmp_path / "options.json").write_text(RunOptions(run_id="role", time_limit_s=60).started().model_dump_json())
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    args = ["trainer", "--config", str(tmp_path / "run.json"), "--files", str(tmp_path)]
+    args += ["--options", str(tmp_path / "options.json"), "--redis", "redis://127.0.0.1:1/0"]
+    args += ["--store", str(tmp_path / "store")]
+    code = (
+        "import sys\n"
+        "import trainer.process\n"
+        "from typer.testing import CliRunner\n"
+        "from racer.cli import app\n"
+        "trainer.process.run_trainer = lambda run, opts, stop=None: print('deadline', opts.deadline.limit_s)\n"
+        f"done = CliRunner().invoke(app, {args!r})\n"
+        "print(done.exit_code, done.output.strip())\n"
+        "print(sorted(m for m in sys.modules if m == 'sim' or m.startswith('sim.')))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines() == ["0 deadline 60.0", "[]"], done.stdout
+
+
 def test_no_class_in_trainer_is_over_250_lines() -> None:
     sizes = {}
     for path in sorted((ROOT / "trainer").glob("*.py")):
