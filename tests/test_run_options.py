@@ -123,3 +123,22 @@ def test_an_explicit_eval_episodes_3_beats_the_drfc_folder(tmp_path: Path, monke
     assert explicit["launcher"].eval_episodes == 3
     from_folder = _train_through_the_trainer_role(monkeypatch, ["--run-id", "b", *common])
     assert from_folder["launcher"].eval_episodes == 5
+
+
+def test_racer_trainer_alone_parses_its_time_limit_once_into_the_deadline(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import trainer.process as process
+
+    seen: dict = {}
+    monkeypatch.setattr(process, "run_trainer", lambda run, opts, stop=None: seen.update(run=run, opts=opts))
+    args = ["trainer", "--run-id", "alone", "--track", "racer_straight", "--redis", "redis://127.0.0.1:1/0"]
+    args += ["--store", str(tmp_path / "store"), "--device", "cpu"]
+    before = time.time()
+    done = CliRunner().invoke(app, [*args, "--time-limit", "2m"])
+    assert done.exit_code == 0, done.output
+    deadline = seen["opts"].deadline
+    assert deadline.limit_s == 120.0 and before + 120.0 <= deadline.at <= time.time() + 120.0
+    assert seen["run"].run_id == "alone" and seen["opts"].torch_threads == 1
+    bad = CliRunner().invoke(app, [*args, "--time-limit", "soon"])
+    assert bad.exit_code == 2 and "--time-limit 'soon': duration 'soon' is not valid" in bad.output
