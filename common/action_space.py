@@ -226,6 +226,12 @@ def _as_the_simapp_reads_it(data: dict) -> dict:
     return data
 
 
+def action_space_from_json(text: str | bytes) -> ActionSpace:
+    """A run's stored ``model_metadata.json`` (written by racer, checked when the run was made), read as
+    ``load_action_space`` reads a user's file."""
+    return ActionSpace.model_validate(_as_the_simapp_reads_it(json.loads(text)))
+
+
 def load_action_space(path: str | Path) -> ActionSpace:
     """Read a DeepRacer ``model_metadata.json``; raise ActionSpaceError naming the file if it is unusable or asks
     for what racer cannot honour (a sensor list racer does not build, SAC)."""

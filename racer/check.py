@@ -4,62 +4,17 @@ each, one line per file; and the merging of ``--from-drfc`` with explicit option
 from __future__ import annotations
 
 import textwrap
-from dataclasses import dataclass, field
 from pathlib import Path
 
-from common.defaults import DEFAULT_TRACK
 from common.race import RaceConfig
 from racer.drfc import DrfcImport, import_drfc
+from racer.options import RunOptions
 
 
-@dataclass
-class UserFiles:
-    """The user's inputs to a run after ``--from-drfc`` is merged in (explicit options win)."""
-
-    track: str = DEFAULT_TRACK
-    reward_fn: str | None = None
-    action_space: str | None = None
-    hyperparams: str | None = None
-    workers: int | None = None
-    run_id: str | None = None
-    eval_episodes: int | None = None
-    pretrained: str | None = None
-    randomization: dict = field(default_factory=dict)
-    race: RaceConfig | None = None
-    """The race (``--race``/``--race-type``, else a DRfC run.env's); None: a time trial."""
-    drfc: DrfcImport | None = None
-
-
-def merge_inputs(
-    track: str | None,
-    reward_fn: Path | None,
-    action_space: Path | None,
-    hyperparams: Path | None,
-    from_drfc: Path | None,
-    race: RaceConfig | None = None,
-) -> UserFiles:
-    """The run's inputs: explicit options first, then what a DRfC folder says, then racer's defaults."""
+def merge_inputs(opts: RunOptions, from_drfc: Path | None) -> tuple[RunOptions, DrfcImport | None]:
+    """The run's options with a DRfC folder's (read once) filling those left unset, and the folder's import."""
     drfc = import_drfc(from_drfc) if from_drfc else None
-    if drfc is not None and drfc.track_error is not None and track is None:
-        raise drfc.track_error
-
-    def pick(explicit: object, imported: object) -> str | None:
-        chosen = explicit if explicit is not None else imported
-        return None if chosen is None else str(chosen)
-
-    return UserFiles(
-        track=pick(track, drfc and drfc.track) or DEFAULT_TRACK,
-        reward_fn=pick(reward_fn, drfc and drfc.reward_fn),
-        action_space=pick(action_space, drfc and drfc.action_space),
-        hyperparams=pick(hyperparams, drfc and drfc.hyperparams),
-        workers=drfc.workers if drfc else None,
-        run_id=drfc.run_id if drfc else None,
-        eval_episodes=drfc.eval_episodes if drfc else None,
-        pretrained=drfc.pretrained if drfc else None,
-        randomization=dict(drfc.randomization) if drfc else {},
-        race=race if race is not None else (drfc.race if drfc else None),
-        drfc=drfc,
-    )
+    return opts.with_drfc(drfc), drfc
 
 
 LINE_WIDTH = 110
@@ -98,32 +53,25 @@ def drfc_lines(drfc: DrfcImport | None) -> list[str]:
     return lines
 
 
-def check_files(inputs: UserFiles) -> list[str]:
-    """Validate as ``racer train`` does (raising its one-line errors) and describe each file in one line."""
+def check_files(opts: RunOptions, drfc: DrfcImport | None = None) -> list[str]:
+    """Validate as ``racer train`` does (raising its one-line errors) and describe each file in one line; ``drfc``
+    is the folder ``opts`` were merged with (its multi-config worker files are checked too)."""
     from common.action_space import ActionSpace
     from racer.runconfig import build_run
 
+    if drfc is not None and not opts.worker_settings:
+        opts = opts.model_copy(update={"worker_settings": list(drfc.worker_settings)})
     notes: list[str] = []
-    run, files = build_run(
-        "racer-check",
-        inputs.track,
-        inputs.reward_fn,
-        inputs.action_space,
-        inputs.hyperparams,
-        worker_settings=list(inputs.drfc.worker_settings) if inputs.drfc else None,
-        notes=notes,
-        randomization_update=inputs.randomization,
-        race=inputs.race,
-    )
+    run, files = build_run("racer-check", opts, notes)
     # What build_run read and checked, not the files read a second time.
     actions = ActionSpace.model_validate_json(files["model_metadata.json"])
     hp = run.hyperparams
     kind = f"{actions.n} discrete actions" if actions.discrete else "a continuous action space"
     lines = [
-        f"{inputs.reward_fn or 'reward function (racer default)'}: ran on {run.env.track} in a throwaway env: ok",
-        f"{inputs.action_space or 'model_metadata.json (racer default)'}: {kind}, sensor {', '.join(actions.sensor)}, "
+        f"{opts.reward_fn or 'reward function (racer default)'}: ran on {run.env.track} in a throwaway env: ok",
+        f"{opts.action_space or 'model_metadata.json (racer default)'}: {kind}, sensor {', '.join(actions.sensor)}, "
         f"{actions.training_algorithm}, {actions.neural_network} (racer's {run.policy.network} CNN)",
-        f"{inputs.hyperparams or 'hyperparameters.json (DeepRacer defaults)'}: batch {hp.batch_size}, lr {hp.lr:g}, "
+        f"{opts.hyperparams or 'hyperparameters.json (DeepRacer defaults)'}: batch {hp.batch_size}, lr {hp.lr:g}, "
         f"{hp.num_epochs} epochs every {hp.num_episodes_between_training} episodes, {hp.loss_type} value loss, "
         f"stops after {hp.term_cond_max_episodes} policy updates",
     ]
@@ -131,7 +79,7 @@ def check_files(inputs: UserFiles) -> list[str]:
     for k, worker in enumerate(run.worker_envs):
         lines.append(f"worker {k + 1}: {worker.describe()}")
     lines += notes
-    lines += drfc_lines(inputs.drfc)
+    lines += drfc_lines(drfc)
     return lines
 
 

@@ -18,54 +18,13 @@ from rich.live import Live
 
 from common.bus import Bus
 from common.config import RunConfig
-from common.hyperparams import check_cooldown
 from common.redis_util import connect, connect_checked, redact
 from model_store import LocalStore, RunStore, open_store
 from model_store.runs import local_run_dir, run_prefix
 from racer.embedded_redis import EmbeddedRedis
 from racer.lifecycle import USER_ERROR_EXIT, RoleFailed, spawn_role, stop_all
+from racer.options import RunOptions
 from racer.redis_record import remove_redis_record, write_redis_record
-
-
-@dataclass
-class TrainOptions:
-    """What ``racer train`` was asked to do (beyond the run's own config)."""
-
-    workers: int = 2
-    redis_url: str | None = None
-    """None = start an embedded Redis for this run."""
-    store: str = "."
-    s3_endpoint: str | None = None
-    time_limit_s: float | None = None
-    resume: bool = False
-    trainer_threads: int = 2
-    """PyTorch threads of the trainer: with max_policy_lag 0 the workers wait while it trains, so it can use two."""
-    precision: str = "auto"
-    """The trainer's PPO update arithmetic: auto, fp32, bf16 or fp16 (``racer trainer --precision``)."""
-    device: str = "auto"
-    """Where the trainer and the evaluator compute: auto, cpu, cuda or cuda:N (``trainer.device``); the workers
-    always act on the CPU."""
-    evaluate: bool = True
-    """Run the evaluator process beside the trainer."""
-    eval_every: int = 1
-    """Evaluate every N-th policy version."""
-    eval_episodes: int = 3
-    """Start positions per direction in each evaluation."""
-    eval_tracks: list[str] = field(default_factory=list)
-    """Tracks the evaluator drives (empty = the run's track)."""
-    eval_both_directions: bool = True
-    """The evaluator also drives every start in the reverse direction (False: as a DeepRacer race, forward only)."""
-    eval_nice: int = 5
-    """The evaluator's nice increment: on a machine shared with the trainer and workers it yields the CPU to them.
-    It still takes a share: an evaluation running during a PPO update slowed that update by up to ~50 %."""
-    stop_when_robust: int | None = None
-    """Stop once this many consecutive evaluated checkpoints complete every evaluation lap."""
-    worker_restarts: int = 3
-    """Restarts allowed per worker slot after a crash or kill (not after a user error, exit code 2)."""
-    envs_per_worker: int = 1
-    """Envs each worker steps side by side (``racer worker --envs-per-worker``)."""
-    view: tuple[str, int] | None = None
-    """Serve ``racer view``'s page of the run on this (host, port) from this process (docs/view.md)."""
 
 
 def new_run_id() -> str:
@@ -136,13 +95,15 @@ def sigterm_as_ctrl_c():  # noqa: ANN201 - a context manager
         signal.signal(signal.SIGTERM, previous)
 
 
-def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], console: Console | None = None) -> dict:
+def run_train(run: RunConfig, opts: RunOptions, run_files: dict[str, bytes], console: Console | None = None) -> dict:
     """Start Redis (unless given), the trainer and the workers; show progress; stop them all at the end.
 
+    ``opts`` were checked against ``run`` (``racer.runconfig.open_run``). The deadline is fixed as the roles start,
+    and the trainer gets it with the rest of ``opts`` (``--options``): every process stops at the same moment.
     Returns the trainer's last status. Raises RoleFailed if the trainer fails or every worker has stopped.
     """
     console = console or Console()
-    check_cooldown(run.hyperparams.lr_cooldown, opts.time_limit_s)
+    opts = opts.with_defaults()
     _check_store(opts.store, opts.s3_endpoint)
     if opts.redis_url:
         connect_checked(opts.redis_url).close()  # a wrong URL or password fails here, before any process starts
@@ -158,26 +119,16 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
             view = ViewOptions(run.run_id, opts.store, opts.s3_endpoint, redis_url, *opts.view, run=run)
             console.print(f"racer view: {stack.enter_context(ViewServer(view)).url}", highlight=False, soft_wrap=True)
         work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="racer-train-")))
-        config_path = work / "run.json"
-        config_path.write_text(run.model_dump_json())
-        for name, data in run_files.items():
-            (work / name).write_bytes(data)
         logs = local_run_dir(opts.store, run.run_id) / "logs"
         logs.mkdir(parents=True, exist_ok=True)
         common = ["--redis", redis_url, "--store", opts.store]
         common += ["--s3-endpoint", opts.s3_endpoint] if opts.s3_endpoint else []
-        trainer_args = ["trainer", "--config", str(config_path), "--files", str(work), *common]
-        trainer_args += ["--resume"] if opts.resume else []
-        trainer_args += ["--threads", str(opts.trainer_threads), "--precision", opts.precision]
-        trainer_args += ["--device", opts.device]
-        # The trainer counts its learning-rate cool-down (lr_cooldown) back from the same limit; the watch below
-        # still stops every process at this process's deadline, which comes first.
-        trainer_args += ["--time-limit", f"{opts.time_limit_s}s"] if opts.time_limit_s is not None else []
-        trainer = spawn_role(trainer_args, logs / "trainer.log")
+        opts = opts.model_copy(update={"redis_url": redis_url, "run_id": run.run_id}).started()
+        trainer = spawn_role(trainer_args(run, opts, run_files, work, common), logs / "trainer.log")
         worker_common = [*common, "--envs-per-worker", str(opts.envs_per_worker)]
         workers = [
             spawn_role(_worker_args(run.run_id, k, worker_common), logs / f"worker-{k}.log")
-            for k in range(opts.workers)
+            for k in range(int(opts.workers or 0))
         ]
         evaluator = []
         if opts.evaluate:
@@ -192,6 +143,19 @@ def run_train(run: RunConfig, opts: TrainOptions, run_files: dict[str, bytes], c
             return _watch(run, opts, redis_url, trainer, restarts, console)
         finally:
             stop_all([*workers, *evaluator, trainer])
+
+
+def trainer_args(
+    run: RunConfig, opts: RunOptions, run_files: dict[str, bytes], work: Path, common: list[str]
+) -> list[str]:
+    """``racer trainer``'s arguments under ``racer train``: the run's config, its files and ``opts`` (with the
+    deadline) written as JSON into ``work``."""
+    (work / "run.json").write_text(run.model_dump_json())
+    (work / "options.json").write_text(opts.model_dump_json())
+    for name, data in run_files.items():
+        (work / name).write_bytes(data)
+    args = ["trainer", "--config", str(work / "run.json"), "--files", str(work), *common]
+    return [*args, "--options", str(work / "options.json")]
 
 
 def check_device_options(device: str, precision: str) -> None:
@@ -286,7 +250,7 @@ class _Workers:
 
 def _watch(
     run: RunConfig,
-    opts: TrainOptions,
+    opts: RunOptions,
     redis_url: str,
     trainer: subprocess.Popen,
     workers: _Workers,
@@ -294,7 +258,7 @@ def _watch(
 ) -> dict:
     bus = Bus(connect(redis_url), run.run_id)
     started = time.monotonic()
-    deadline = None if opts.time_limit_s is None else started + opts.time_limit_s
+    deadline = opts.deadline
     status: dict | None = None
     evals: list[dict] = []
     line = ""
@@ -307,7 +271,7 @@ def _watch(
     live = Live(console=console, refresh_per_second=4, transient=True) if interactive else None
     with live or contextlib.nullcontext():
         try:
-            while deadline is None or time.monotonic() < deadline:
+            while deadline is None or not deadline.passed():
                 if trainer.poll() is not None:
                     if trainer.returncode == 0:
                         break  # finished by its own termination condition
@@ -322,7 +286,7 @@ def _watch(
                 try:
                     status = bus.trainer_status() or status
                     evals = [e.model_dump() for e in bus.evaluations()[0]]
-                    line = _status_line(status, workers.alive, opts.workers, evals[-1] if evals else None)
+                    line = _status_line(status, workers.alive, len(workers.procs), evals[-1] if evals else None)
                 except redis.RedisError as exc:  # the roles ride out the outage; so does the display
                     line = f"Redis at {redact(redis_url)} unreachable ({type(exc).__name__}); the roles are retrying"
                 elapsed = time.monotonic() - started

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import logging
-import re
-from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from pydantic import ValidationError
 
@@ -20,68 +19,51 @@ from common.config import (
     WorkerEnv,
     network_from_metadata,
 )
-from common.defaults import DEFAULT_TRACK
 from common.errors import OptionError, UserError, first_validation_error
 from common.hyperparams import Hyperparameters, HyperparametersError, load_hyperparameters
 from common.jsonfile import load_json_model
 from common.race import RaceConfig, RaceType
 from model_store import RunStore, StoreError
 from racer.drfc import DrfcImport, WorkerSettings, read_worker_settings
-from sim.env import preflight_reward
-from sim.reward import example_path
-from sim.track import load_track
-
-_DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([smh]?)\s*$")
-
-
-def parse_duration(text: str) -> float:
-    """Seconds in ``90s``, ``5m``, ``1.5h`` or a bare number of seconds; OptionError naming the text otherwise."""
-    m = _DURATION.match(text)
-    if not m:
-        raise OptionError(f"duration {text!r} is not valid: use a number with s, m or h (90s, 5m, 2h)")
-    return float(m.group(1)) * {"": 1, "s": 1, "m": 60, "h": 3600}[m.group(2)]
+from racer.options import RunOptions
 
 
 def build_run(
-    run_id: str,
-    track: str = DEFAULT_TRACK,
-    reward_fn: str | None = None,
-    action_space: str | None = None,
-    hyperparams: str | None = None,
-    randomization: str | None = None,
-    worker_settings: list[WorkerSettings | None] | None = None,
-    seed: int = 0,
-    car_calibration: str | None = None,
-    notes: list[str] | None = None,
-    randomization_update: dict | None = None,
-    race: RaceConfig | None = None,
+    run_id: str, opts: RunOptions | None = None, notes: list[str] | None = None, **options: Any
 ) -> tuple[RunConfig, dict[str, bytes]]:
-    """Validate the user's files now (before any process starts) and build the run's config and files.
+    """Validate the user's files now (before any process starts) and build the run's config and files from ``opts``
+    (``RunOptions``) with ``options`` (its field names: ``track=…``, ``hyperparams=…``) set on top.
 
-    ``notes`` (if given) collects one line per thing in the files that racer accepts but does not use;
-    ``randomization_update`` sets RandomizationConfig fields (from a DRfC run.env); ``worker_settings`` gives each
-    worker's own world (None: the run's).
+    ``notes`` (if given) collects one line per thing in the files that racer accepts but does not use.
     """
+    # The simulator is imported here, not with the module: the trainer role reads its run from racer train's
+    # --config through this module and builds no env.
+    from sim.env import preflight_reward
+    from sim.reward import example_path
+    from sim.track import load_track
+
+    opts = RunOptions.model_validate({**(opts or RunOptions()).model_dump(), **options}).with_defaults()
+    track, action_space, hyperparams = str(opts.track), opts.action_space, opts.hyperparams
     load_track(track)
-    reward_path = Path(reward_fn) if reward_fn else example_path("default")
+    reward_path = Path(opts.reward_fn) if opts.reward_fn else example_path("default")
     actions = load_action_space(action_space) if action_space else default_action_space()
     hp = load_hyperparameters(hyperparams) if hyperparams else Hyperparameters()
     if notes is not None and hp.ignored():
         notes.append(f"{hyperparams}: accepted, not used by racer: {', '.join(hp.ignored())}")
-    dr = load_randomization(randomization) if randomization else None
-    car = load_car(car_calibration) if car_calibration else CarCalibration()
-    dr = (dr or RandomizationConfig()).model_copy(update=randomization_update or {})
+    dr = load_randomization(opts.randomization) if opts.randomization else None
+    car = load_car(opts.car_calibration) if opts.car_calibration else CarCalibration()
+    dr = (dr or RandomizationConfig()).model_copy(update=opts.randomization_update)
     env = EnvConfig(
         track=track,
         randomization=RandomizationConfig.model_validate(dr.model_dump()),
         car=car,
-        race=race or RaceConfig(),
+        race=opts.race or RaceConfig(),
     )
     # A broken reward function fails here, naming the user's file, before any process starts. The check drives a
     # throwaway env (its own copy of the reward module) on the run's track, so nothing it caches reaches training.
     user_files = {"reward_fn": str(reward_path), "action_space": action_space}
     preflight_reward(env.model_copy(update=user_files))
-    workers = worker_envs(env, worker_settings or [], notes)
+    workers = worker_envs(env, opts.worker_settings, notes)
     for worker in {w.model_dump_json(): w for w in workers if w.track or w.race}.values():
         # Each world a worker drives is checked as the run's is: its track loads, its race fits, the reward runs.
         preflight_reward(worker.apply(env).model_copy(update=user_files))
@@ -94,7 +76,16 @@ def build_run(
     policy = PolicyConfig(
         network=network_from_metadata(actions.neural_network), stack_size=hp.stack_size, greedy_action=hp.greedy_action
     )
-    run = RunConfig(run_id=run_id, env=env, hyperparams=hp, policy=policy, worker_envs=workers, seed=seed)
+    run = RunConfig(
+        run_id=run_id,
+        env=env,
+        hyperparams=hp,
+        policy=policy,
+        worker_envs=workers,
+        seed=opts.seed,
+        max_policy_lag=opts.max_policy_lag,
+        segment_steps=opts.segment_steps,
+    )
     files = {
         "reward_function.py": reward_path.read_bytes(),
         "model_metadata.json": actions.to_json().encode(),
@@ -106,6 +97,8 @@ def build_run(
 def worker_envs(env: EnvConfig, settings: list[WorkerSettings | None], notes: list[str] | None) -> list[WorkerEnv]:
     """Each worker's world from what its file changes (None: the run's ``env``); a track that does not load or a
     randomization the run's cannot take is a one-line error naming the worker's file."""
+    from sim.track import load_track
+
     out: list[WorkerEnv] = []
     for item in settings:
         if item is None:
@@ -277,83 +270,50 @@ def check_pretrained(runs: RunStore, run: RunConfig, files: dict[str, bytes], re
     return run.model_copy(update={"pretrained": f"{source}:{version}"})
 
 
-@dataclass
-class NewRun:
-    """What defines a new run: ``racer train``'s (or ``racer trainer``'s) options, merged with a DRfC folder."""
-
-    track: str = DEFAULT_TRACK
-    reward_fn: str | None = None
-    action_space: str | None = None
-    hyperparams: str | None = None
-    randomization: str | None = None
-    """A randomization JSON file."""
-    randomization_update: dict = field(default_factory=dict)
-    """RandomizationConfig fields set on top (from a DRfC run.env)."""
-    worker_settings: list[WorkerSettings | None] = field(default_factory=list)
-    """Each worker's own world (``--worker-track``, ``--worker-config``, DRfC's multi-config); None: the run's."""
-    seed: int = 0
-    car: str | None = None
-    """A car preset's name or a car.json (None: the default car)."""
-    max_policy_lag: int = 0
-    segment_steps: int = 32
-    pretrained: str | None = None
-    """``RUN[:best|latest|N]`` of another run in the store to start from."""
-    race: RaceConfig | None = None
-    """The race (``--race``/``--race-type`` or a DRfC run.env); None: a time trial."""
-
-
-def open_run(runs: RunStore, run_id: str, new: NewRun | None) -> tuple[RunConfig, dict[str, bytes], list[str]]:
-    """The run to train: with ``new`` None (a resume) the stored one; else a new run built from the user's files,
-    checked now, and refused if ``run_id`` already has checkpoints. Returns its config, its files (none on a
-    resume) and one note per thing in the files that racer accepts but does not use."""
-    if new is None:
-        return runs.read_config(run_id), {}, []
+def open_run(runs: RunStore, opts: RunOptions) -> tuple[RunConfig, dict[str, bytes], list[str]]:
+    """The run ``racer train`` trains (``opts.run_id``): on ``opts.resume`` the stored one; else a new run built
+    from the user's files, checked now, and refused if the run already has checkpoints. Either way the options are
+    checked against it (``RunOptions.check_run``). Returns its config, its files (none on a resume) and one note per
+    thing in the files that racer accepts but does not use."""
+    run_id = str(opts.run_id)
+    if opts.resume:
+        run = runs.read_config(run_id)
+        opts.check_run(run)
+        return run, {}, []
     if runs.newest_whole(run_id) is not None:
         raise OptionError(
             f"run {run_id!r} already exists in {runs.store.uri}: add --resume to continue it, "
             "or choose another --run-id"
         )
     notes: list[str] = []
-    run, files = build_run(
-        run_id,
-        new.track,
-        new.reward_fn,
-        new.action_space,
-        new.hyperparams,
-        new.randomization,
-        new.worker_settings,
-        new.seed,
-        new.car,
-        notes=notes,
-        randomization_update=new.randomization_update,
-        race=new.race,
-    )
-    run = run.model_copy(update={"max_policy_lag": new.max_policy_lag, "segment_steps": new.segment_steps})
-    if new.pretrained:
-        run = check_pretrained(runs, run, files, new.pretrained)
+    run, files = build_run(run_id, opts, notes)
+    if opts.pretrained:
+        run = check_pretrained(runs, run, files, opts.pretrained)
+    opts.check_run(run)
     return run, files, notes
 
 
 def trainer_role_run(
-    runs: RunStore, run_id: str | None, config: Path | None, files: Path | None, resume: bool, new: NewRun
+    runs: RunStore, config: Path | None, files: Path | None, opts: RunOptions
 ) -> tuple[RunConfig, dict[str, bytes], bool]:
     """The run ``racer trainer`` trains, its files and whether it resumes: from ``config`` (and the ``files``
-    folder) written by ``racer train``; on ``resume`` the stored run; else a new run from ``new``. A run that
-    already has checkpoints is always resumed: a restarted trainer (compose's restart: on-failure, a crashed
-    host) continues its run, never restarts it."""
+    folder) written by ``racer train``, which checked it; on ``opts.resume`` the stored run; else a new run from
+    ``opts``. A run that already has checkpoints is always resumed: a restarted trainer (compose's restart:
+    on-failure, a crashed host) continues its run, never restarts it."""
     run_files: dict[str, bytes] = {}
+    resume = opts.resume
     if config:
         run = load_json_model(config, "run config", RunConfig, OptionError)
         if files:
             run_files = {p.name: p.read_bytes() for p in files.iterdir() if p.is_file() and p.name != config.name}
-    elif resume:
-        if not run_id:
-            raise OptionError("--resume needs --run-id")
-        run = runs.read_config(run_id)
-    elif not run_id:
-        raise OptionError("give --run-id (or RACER_RUN_ID) or --config")
     else:
-        run, run_files = build_run(run_id, new.track, new.reward_fn, new.action_space, new.hyperparams, race=new.race)
+        if not opts.run_id:
+            raise OptionError("--resume needs --run-id" if resume else "give --run-id (or RACER_RUN_ID) or --config")
+        if resume:
+            run = runs.read_config(opts.run_id)
+        else:
+            run, run_files = build_run(opts.run_id, opts)
+        opts.check_run(run)
     if not resume and runs.newest_whole(run.run_id) is not None:
         logging.getLogger("racer.trainer").warning(
             "run %s already has checkpoints in %s: continuing it (as --resume)", run.run_id, runs.store.uri

@@ -516,25 +516,27 @@ def drfc_folder_with(tmp_path: Path, run_env: str, edit: Callable[[str], str] = 
 @needs_deepracer_tracks
 def test_community_run_env_files_import_as_drfc_reads_them(tmp_path: Path) -> None:
     from racer.check import merge_inputs
+    from racer.options import RunOptions
 
     # DR_LOCAL_S3_MODEL_PREFIX=training/$DR_WORLD_NAME/first-model: expanded as the shell DRfC sources it with.
-    dots = merge_inputs(None, None, None, None, drfc_folder_with(tmp_path / "a", "dots_run.env"))
+    dots, dots_drfc = merge_inputs(RunOptions(), drfc_folder_with(tmp_path / "a", "dots_run.env"))
     assert dots.track == "reInvent2019_track" and dots.run_id == "training-reInvent2019_track-first-model"
-    assert dots.eval_episodes == 3 and "DR_EVAL_OFF_TRACK_PENALTY" in dots.drfc.mapped
+    assert dots.eval_episodes == 3 and "DR_EVAL_OFF_TRACK_PENALTY" in dots_drfc.mapped
     # A time trial: its DR_OA_*/DR_H2B_* lines (DRfC's template writes them all) place nothing.
     assert dots.race.race_type == "TIME_TRIAL" and dots.race.obstacle_count == dots.race.bot_car_count == 0
     assert dots.race.penalties.off_track_penalty == 5.0
-    template = merge_inputs(None, None, None, None, drfc_folder_with(tmp_path / "b", "drfc_template-run.env"))
-    assert template.track == "reinvent_base" and template.randomization["round_robin_divisions"] == 20
+    template, template_drfc = merge_inputs(RunOptions(), drfc_folder_with(tmp_path / "b", "drfc_template-run.env"))
+    assert template.track == "reinvent_base" and template.randomization_update["round_robin_divisions"] == 20
     assert template.race.race_type == "TIME_TRIAL" and template.race.penalties.number_of_resets == 100
-    assert not [k for k in template.drfc.unmapped if k.startswith(("DR_OA_", "DR_H2B_", "DR_RACE_"))]
+    assert not [k for k in template_drfc.unmapped if k.startswith(("DR_OA_", "DR_H2B_", "DR_RACE_"))]
 
 
 def test_a_community_run_env_imports_on_the_track_given(tmp_path: Path) -> None:
     from racer.check import merge_inputs
+    from racer.options import RunOptions
 
     folder = drfc_folder_with(tmp_path, "codeiwomple_run.env")  # DR_WORLD_NAME=2022_april_pro_ccw
-    inputs = merge_inputs(DEFAULT_TRACK, None, None, None, folder)
+    inputs, _ = merge_inputs(RunOptions(track=DEFAULT_TRACK), folder)
     assert inputs.track == DEFAULT_TRACK and inputs.pretrained == "conor-model-finals-v4-16:latest"
     done = subprocess.run(
         [sys.executable, "-m", "racer", "check", "--from-drfc", str(folder), "--track", DEFAULT_TRACK],
@@ -549,15 +551,16 @@ def test_a_community_run_env_imports_on_the_track_given(tmp_path: Path) -> None:
 def test_a_drfc_track_racer_cannot_find_is_one_line_unless_track_is_given(tmp_path: Path) -> None:
     from racer.check import merge_inputs
     from racer.drfc import DrfcError
+    from racer.options import RunOptions
 
     folder = drfc_folder_with(
         tmp_path, "codeiwomple_run.env", edit=lambda text: text.replace("=2022_april_pro_ccw", "=no_such_track")
     )
     with pytest.raises(DrfcError) as info:
-        merge_inputs(None, None, None, None, folder)
+        merge_inputs(RunOptions(), folder)
     message = str(info.value)
     assert "run.env" in message and "DR_WORLD_NAME='no_such_track'" in message and "\n" not in message
-    assert merge_inputs(DEFAULT_TRACK, None, None, None, folder).track == DEFAULT_TRACK
+    assert merge_inputs(RunOptions(track=DEFAULT_TRACK), folder)[0].track == DEFAULT_TRACK
 
 
 def test_racer_check_prints_its_own_lines_only_for_a_printing_function() -> None:

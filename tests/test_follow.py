@@ -274,13 +274,15 @@ def test_status_finds_a_running_train_by_its_run_id_or_its_store_alone(tmp_path:
 def test_tensorboard_gets_the_evaluation_scalars(tmp_path: Path, redis_url: str, run_id: str) -> None:
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+    from common.deadline import Deadline
     from racer.runconfig import build_run
     from trainer.process import Trainer, TrainerOptions
 
     run, files = build_run(run_id, track=STRAIGHT_TRACK)
     store = str(tmp_path / "store")
-    trainer = Trainer(run, TrainerOptions(redis_url, store, run_files=files, time_limit_s=1.5))
+    trainer = Trainer(run, TrainerOptions(redis_url, store, run_files=files))
     trainer.start()
+    trainer.opts.deadline = Deadline.after(1.5)
     for version, lap in ((1, None), (2, 9.5)):
         trainer.bus.report_evaluation(
             EvaluationSummary(

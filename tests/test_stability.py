@@ -16,6 +16,7 @@ import redis
 import torch
 
 from common.bus import Bus
+from common.deadline import Deadline
 from common.defaults import STRAIGHT_TRACK
 from common.errors import OptionError
 from common.keys import Keys
@@ -23,19 +24,13 @@ from common.policy import acting_from_bytes, acting_to_bytes, checkpoint_from_by
 from common.protocol import PolicyVersion
 from model_store import RunStore, open_store
 from model_store.runs import METRICS_FILE
-from racer.runconfig import build_run
+from racer.options import RunOptions
+from racer.runconfig import build_run, open_run, trainer_role_run
 from rollout_worker.worker import RolloutWorker
 from tests.test_training_loop import fill, start
 from trainer.evaluator import evaluation_summary, save_evaluation, score
-from trainer.process import (
-    CollapseWatch,
-    Stability,
-    Trainer,
-    TrainerOptions,
-    is_collapsed,
-    is_slower,
-    rolled_back_lr_scale,
-)
+from trainer.guard import CollapseWatch, Stability, is_collapsed, is_slower, rolled_back_lr_scale
+from trainer.process import Trainer, TrainerOptions
 
 # --- the rule ------------------------------------------------------------------------------------------------
 
@@ -207,12 +202,13 @@ def test_a_collapse_rolls_back_to_the_best_weights_and_optimizer_at_a_lower_lr(
 
     # Switched off (DeepRacer), the loop never looks.
     trainer.hp.collapse_guard = False
-    trainer.opts.time_limit_s = 1.2
+    trainer.opts.deadline = Deadline.after(1.2)
     trainer.run_forever()
     assert trainer.version == 3 and trainer.stability == Stability()
 
     # Switched on, the loop rolls back: v4 is v1's weights and optimizer state.
     trainer.hp.collapse_guard = True
+    trainer.opts.deadline = Deadline.after(1.2)
     with caplog.at_level(logging.WARNING, logger="racer.trainer"):
         trainer.run_forever()
     assert trainer.version == 4
@@ -293,11 +289,12 @@ def test_the_cool_down_lowers_the_learning_rate_towards_the_time_limit(redis_url
     path = tmp_path / "hyperparameters.json"
     path.write_text(json.dumps({"lr": 0.001, "lr_cooldown": 0.5, "lr_final_fraction": 0.1}))
     run, files = build_run(run_id, track=STRAIGHT_TRACK, hyperparams=str(path))
-    trainer = Trainer(run, TrainerOptions(redis_url, str(tmp_path / "store"), time_limit_s=100.0, run_files=files))
-    assert trainer.learning_rate() == pytest.approx(0.001)  # not started: no deadline yet
-    trainer.deadline = time.monotonic() + 80.0
+    trainer = Trainer(run, TrainerOptions(redis_url, str(tmp_path / "store"), run_files=files))
+    trainer.start()
+    assert trainer.learning_rate() == pytest.approx(0.001)  # no deadline: no cool-down
+    trainer.opts.deadline = Deadline(at=time.time() + 80.0, limit_s=100.0)
     assert trainer.learning_rate() == pytest.approx(0.001)
-    trainer.deadline = time.monotonic() + 25.0
+    trainer.opts.deadline = Deadline(at=time.time() + 25.0, limit_s=100.0)
     assert trainer.learning_rate() == pytest.approx(0.001 * (0.1 + 0.9 * 0.5), rel=1e-3)
     trainer.stability.lr_scale = 0.5
     assert trainer.learning_rate() == pytest.approx(0.0005 * (0.1 + 0.9 * 0.5), rel=1e-3)
@@ -306,6 +303,11 @@ def test_the_cool_down_lowers_the_learning_rate_towards_the_time_limit(redis_url
 def test_a_cool_down_without_a_time_limit_is_refused(redis_url, run_id, tmp_path) -> None:
     path = tmp_path / "hyperparameters.json"
     path.write_text(json.dumps({"lr_cooldown": 0.2}))
-    run, files = build_run(run_id, track=STRAIGHT_TRACK, hyperparams=str(path))
+    runs = RunStore(open_store(str(tmp_path / "store")))
+    opts = RunOptions(run_id=run_id, track=STRAIGHT_TRACK, hyperparams=str(path))
     with pytest.raises(OptionError, match=r"hyperparameters.json: lr_cooldown 0.2 needs a time limit"):
-        Trainer(run, TrainerOptions(redis_url, str(tmp_path / "store"), run_files=files))
+        open_run(runs, opts)  # racer train: before anything starts
+    with pytest.raises(OptionError, match=r"hyperparameters.json: lr_cooldown 0.2 needs a time limit"):
+        trainer_role_run(runs, None, None, opts)  # racer trainer alone
+    run, _, _ = open_run(runs, opts.model_copy(update={"time_limit_s": 60.0}))
+    assert run.hyperparams.lr_cooldown == 0.2

@@ -90,7 +90,7 @@ def test_an_iteration_publishes_a_version_the_worker_switches_to(redis_url, run_
     status = trainer.status()
     if bf16_is_fast():
         assert set(status["precision_ms"]) == {"fp32", "bf16"}
-        assert status["precision"] == fastest(status["precision_ms"]) and trainer.precision_choices == (
+        assert status["precision"] == fastest(status["precision_ms"]) and trainer.learner.precision_choices == (
             status["precision"],
         )
     else:

@@ -18,7 +18,8 @@ from common.protocol import encode_segment
 from model_store import LocalStore, RunStore
 from racer.bench import Report, figures_table
 from racer.embedded_redis import EmbeddedRedis
-from racer.launcher import TrainOptions, run_train
+from racer.launcher import run_train
+from racer.options import RunOptions
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
 from trainer.process import Trainer, TrainerOptions
@@ -109,7 +110,10 @@ def bench_loop(workers: int, duration_s: float, track: str = DEFAULT_TRACK, hype
         monitor.start()
         t0 = time.monotonic()
         status = run_train(
-            run, TrainOptions(workers, server.url, store, None, duration_s), files, Console(file=io.StringIO())
+            run,
+            RunOptions(workers=workers, redis_url=server.url, store=store, time_limit_s=duration_s),
+            files,
+            Console(file=io.StringIO()),
         )
         wall = time.monotonic() - t0
         monitor.halt.set()

@@ -149,7 +149,15 @@ def run_seed(settings: BenchOASettings, seed: int) -> dict[str, Any]:
         space, hp = _files(Path(tmp))
         run_id = f"bench-oa-{race.race_type.value.lower().replace('_', '-')}-s{seed}"
         reward = str(example_path(OA_REWARD))
-        run, files = build_run(run_id, settings.track, reward, str(space), str(hp), seed=seed, race=race)
+        run, files = build_run(
+            run_id,
+            track=settings.track,
+            reward_fn=reward,
+            action_space=str(space),
+            hyperparams=str(hp),
+            seed=seed,
+            race=race,
+        )
     curve, guard = train_from_scratch(run, files, settings.workers, settings.minutes, settings.eval_trials, oa_curve)
     figures = seed_figures(curve, min(MIN_TRIALS, settings.eval_trials))
     figures.update(seed=seed, rollbacks=guard["rollbacks"], curve=curve)

@@ -57,7 +57,8 @@ from common.jsonfile import read_json_object
 from model_store import LocalStore, RunStore
 from racer.bench import Report
 from racer.embedded_redis import EmbeddedRedis
-from racer.launcher import TrainOptions, run_train
+from racer.launcher import run_train
+from racer.options import RunOptions
 from racer.runconfig import build_run, load_randomization
 from sim.reward import example_path
 
@@ -334,12 +335,11 @@ def train_from_scratch(
     runs, t0)`` of the stored run and the collapse guard's ``rollbacks`` and ``slow_rollbacks`` (those its
     ``collapse_slowdown`` started). ``racer bench race`` and ``bench oa`` share it."""
     with EmbeddedRedis() as server, tempfile.TemporaryDirectory(prefix="racer-bench-") as tmp:
-        opts = TrainOptions(
-            workers,
-            server.url,
-            str(Path(tmp, "store")),
-            None,
-            minutes * 60.0,
+        opts = RunOptions(
+            workers=workers,
+            redis_url=server.url,
+            store=str(Path(tmp, "store")),
+            time_limit_s=minutes * 60.0,
             eval_every=1,
             eval_episodes=eval_episodes,
             eval_both_directions=False,
@@ -360,7 +360,13 @@ def seed_run(settings: BenchRaceSettings, seed: int, constants: dict[str, float]
         space, hp = _files(Path(tmp), settings.race_hyperparams(), settings.race_actions())
         reward = str(reward_file(Path(tmp), constants))
         run, files = build_run(
-            f"bench-race-s{seed}", settings.track, reward, str(space), str(hp), settings.randomization, seed=seed
+            f"bench-race-s{seed}",
+            track=settings.track,
+            reward_fn=reward,
+            action_space=str(space),
+            hyperparams=str(hp),
+            randomization=settings.randomization,
+            seed=seed,
         )
     return run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(settings.car)})}), files
 

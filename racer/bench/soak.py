@@ -17,7 +17,8 @@ from common.bus import Bus
 from common.defaults import STRAIGHT_TRACK
 from racer.bench import Report, figures_table
 from racer.embedded_redis import EmbeddedRedis
-from racer.launcher import TrainOptions, run_train
+from racer.launcher import run_train
+from racer.options import RunOptions
 from racer.runconfig import build_run
 
 SOAK_HYPERPARAMS = {"batch_size": 32, "num_epochs": 1, "num_episodes_between_training": 2}
@@ -77,7 +78,7 @@ def bench_soak(
         run = run.model_copy(update={"stream_maxlen": stream_maxlen, "segment_steps": 16})
         sampler = _Sampler(server.url, run.run_id, every_s)
         sampler.start()
-        opts = TrainOptions(workers, server.url, store, None, duration_s, evaluate=False)
+        opts = RunOptions(workers=workers, redis_url=server.url, store=store, time_limit_s=duration_s, evaluate=False)
         status = run_train(run, opts, files, Console(file=io.StringIO()))
         sampler.halt.set()
         sampler.join()

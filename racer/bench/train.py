@@ -34,7 +34,8 @@ from common.defaults import DEFAULT_TRACK
 from model_store import LocalStore, RunStore
 from racer.bench import Report
 from racer.embedded_redis import EmbeddedRedis
-from racer.launcher import TrainOptions, run_train
+from racer.launcher import run_train
+from racer.options import RunOptions
 from racer.runconfig import build_run
 from trainer.evaluator import EvalSettings, evaluate, summarize
 
@@ -146,12 +147,11 @@ def run_racer(settings: BenchTrainSettings, seed: int) -> LapRun:
     with EmbeddedRedis() as server, tempfile.TemporaryDirectory(prefix="racer-bench-train-") as store:
         run_id = f"bench-train-s{seed}"
         run, files = build_run(run_id, track=settings.track, hyperparams=settings.hyperparams, seed=seed)
-        opts = TrainOptions(
-            settings.workers,
-            server.url,
-            store,
-            None,
-            settings.time_limit_s,
+        opts = RunOptions(
+            workers=settings.workers,
+            redis_url=server.url,
+            store=store,
+            time_limit_s=settings.time_limit_s,
             eval_every=1,
             eval_episodes=settings.eval_episodes,
             stop_when_robust=1,

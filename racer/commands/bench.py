@@ -65,7 +65,7 @@ def loop(
 ) -> None:
     """End-to-end throughput (env steps/s consumed by the trainer), policy propagation and memory, per N workers."""
     from racer.bench import loop as bench
-    from racer.runconfig import parse_duration
+    from common.deadline import parse_duration
 
     seconds = parse_duration(duration)
     counts = int_list(workers, "--workers")
@@ -89,7 +89,7 @@ def train(
 ) -> None:
     """Time and env steps from scratch to a robust lap (every evaluation lap completed), racer vs SB3 PPO."""
     from racer.bench import train as bench
-    from racer.runconfig import parse_duration
+    from common.deadline import parse_duration
 
     seed_numbers, limit = int_list(seeds, "--seeds"), parse_duration(time_limit)
     hp = str(hyperparams) if hyperparams else None
@@ -200,7 +200,7 @@ def soak(
 ) -> None:
     """A long racer train run sampling Redis memory, keys, the stream and each role's memory: is it bounded?"""
     from racer.bench import soak as bench
-    from racer.runconfig import parse_duration
+    from common.deadline import parse_duration
 
     _show(bench.command(parse_duration(duration), workers, track, stream_maxlen), json_out)
 

@@ -32,6 +32,10 @@ def trainer(
     s3_endpoint: Endpoint = None,
     config: Annotated[Path | None, typer.Option(help="RunConfig JSON (written by racer train).")] = None,
     files: Annotated[Path | None, typer.Option(help="Folder with the run's files (written by racer train).")] = None,
+    options: Annotated[
+        Path | None,
+        typer.Option(help="The run's options as JSON (written by racer train); they replace the flags below."),
+    ] = None,
     run_id: Annotated[str | None, typer.Option("--run-id", envvar="RACER_RUN_ID", help="Run id.")] = None,
     track: Annotated[str, typer.Option(envvar="RACER_TRACK", help="Track name or .npy path.")] = DEFAULT_TRACK,
     reward_fn: Annotated[Path | None, typer.Option("--reward-fn", envvar="RACER_REWARD_FN")] = None,
@@ -52,40 +56,56 @@ def trainer(
     verbose: Verbose = False,
 ) -> None:
     """Run the PPO trainer role alone (for docker compose and multi-machine runs)."""
+    from common.deadline import parse_duration
+    from common.errors import OptionError
+    from common.jsonfile import load_json_model
     from model_store import RunStore, open_store
     from racer.lifecycle import setup_logging, stop_event_on_signals
-    from racer.runconfig import NewRun, load_race, parse_duration, trainer_role_run, worker_settings
+    from racer.options import RunOptions
+    from racer.runconfig import load_race, trainer_role_run, worker_settings
     from trainer.device import resolve_device
     from trainer.precision import precision_candidates
     from trainer.process import TrainerOptions, run_trainer
 
     setup_logging(verbose)
-    precision_candidates(precision, resolve_device(device))  # bad values fail before any file is written
-    limit = parse_duration(time_limit) if time_limit else None
-    outage_s = parse_duration(outage_timeout)
-    runs = RunStore(open_store(store, s3_endpoint))
-    new = NewRun(
-        track=track,
-        reward_fn=str(reward_fn) if reward_fn else None,
-        action_space=str(action_space) if action_space else None,
-        hyperparams=str(hyperparams) if hyperparams else None,
-        race=load_race(race, race_type),
-        worker_settings=worker_settings(None, worker_config, None, None),
-    )
-    run, run_files, resume = trainer_role_run(runs, run_id, config, files, resume, new)
-    opts = TrainerOptions(
-        redis_url,
-        store,
-        s3_endpoint,
+    if options is not None:  # racer train's: its flags, its deadline
+        opts = load_json_model(options, "run options", RunOptions, OptionError)
+    else:
+        opts = RunOptions.from_flags(
+            run_id=run_id,
+            store=store,
+            s3_endpoint=s3_endpoint,
+            redis_url=redis_url,
+            resume=resume,
+            track=track,
+            reward_fn=reward_fn,
+            action_space=action_space,
+            hyperparams=hyperparams,
+            race=load_race(race, race_type),
+            worker_settings=worker_settings(None, worker_config, None, None),
+            time_limit_s=time_limit,
+            trainer_threads=threads,
+            precision=precision,
+            device=device,
+        )
+    precision_candidates(opts.precision, resolve_device(opts.device))  # bad values fail before any file is written
+    runs = RunStore(open_store(opts.store, opts.s3_endpoint))
+    run, run_files, resume = trainer_role_run(runs, config, files, opts)
+    # The deadline counts from here when this role runs alone; under racer train it came fixed in --options.
+    opts = opts.started()
+    trainer_opts = TrainerOptions(
+        str(opts.redis_url),
+        opts.store,
+        opts.s3_endpoint,
         resume,
-        limit,
-        threads,
+        opts.deadline,
+        opts.trainer_threads,
         run_files,
-        outage_s=outage_s,
-        precision=precision,
-        device=device,
+        outage_s=parse_duration(outage_timeout),
+        precision=opts.precision,
+        device=opts.device,
     )
-    run_trainer(run, opts, stop_event_on_signals())
+    run_trainer(run, trainer_opts, stop_event_on_signals())
 
 
 def worker(
@@ -109,8 +129,8 @@ def worker(
     verbose: Verbose = False,
 ) -> None:
     """Run one rollout worker (for docker compose and workers on other machines)."""
+    from common.deadline import parse_duration
     from racer.lifecycle import setup_logging, stop_event_on_signals
-    from racer.runconfig import parse_duration
     from rollout_worker.worker import WorkerOptions, run_worker
 
     setup_logging(verbose, simtrace_lines=simtrace_log)
@@ -152,8 +172,8 @@ def evaluator(
 
     if nice:
         os.nice(nice)  # first, so that even importing torch yields the CPU to the trainer and the workers
+    from common.deadline import parse_duration
     from racer.lifecycle import setup_logging, stop_event_on_signals
-    from racer.runconfig import parse_duration
     from trainer.device import resolve_device
     from trainer.evaluator import EvalSettings, EvaluatorOptions, run_evaluator
 

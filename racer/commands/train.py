@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from common.config import PRECISION_HELP
-from common.defaults import DEFAULT_TRACK
+from common.defaults import DEFAULT_EVAL_EPISODES, DEFAULT_TRACK, DEFAULT_WORKERS
 from common.errors import OptionError, UserError
 from racer.commands.options import (
     ActionSpace,
@@ -44,7 +44,7 @@ def train(
         typer.Option(
             min=1,
             help="Rollout worker processes (not given: a --from-drfc folder's DR_WORKERS, if any).",
-            show_default="2",
+            show_default=str(DEFAULT_WORKERS),
         ),
     ] = None,
     envs_per_worker: EnvsPerWorker = 1,
@@ -73,7 +73,14 @@ def train(
     segment_steps: Annotated[int, typer.Option(min=1, help="Env steps per segment sent to Redis.")] = 32,
     evaluate: Annotated[bool, typer.Option("--eval/--no-eval", help="Run the evaluator beside the trainer.")] = True,
     eval_every: Annotated[int, typer.Option(min=1, help="Evaluate every N-th checkpoint.")] = 1,
-    eval_episodes: Annotated[int, typer.Option(min=1, help="Evaluation starts per direction.")] = 3,
+    eval_episodes: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="Evaluation starts per direction (not given: a --from-drfc folder's DR_EVAL_NUMBER_OF_TRIALS).",
+            show_default=str(DEFAULT_EVAL_EPISODES),
+        ),
+    ] = None,
     eval_track: Annotated[list[str] | None, typer.Option("--eval-track", help="Evaluate on these tracks.")] = None,
     stop_when_robust: Annotated[
         int | None, typer.Option(min=1, help="Stop after K consecutive checkpoints complete every evaluation lap.")
@@ -94,58 +101,60 @@ def train(
     """Train: an embedded Redis (unless --redis), the PPO trainer and N rollout workers on this machine."""
     from model_store import RunStore, open_store
     from racer.check import drfc_lines, merge_inputs
-    from racer.launcher import TrainOptions, check_device_options, done_line, new_run_id, run_summary, run_train
-    from racer.runconfig import NewRun, load_race, open_run, parse_duration, worker_settings
+    from racer.launcher import check_device_options, done_line, new_run_id, run_summary, run_train
+    from racer.options import RunOptions
+    from racer.runconfig import load_race, open_run, worker_settings
 
-    limit = parse_duration(time_limit) if time_limit else None
     check_device_options(device, precision)
-    inputs = merge_inputs(track, reward_fn, action_space, hyperparams, from_drfc, load_race(race, race_type))
-    workers = workers or inputs.workers or 2
-    eval_episodes = inputs.eval_episodes if eval_episodes == 3 and inputs.eval_episodes else eval_episodes
     if resume and not run_id:
         raise OptionError("--resume needs --run-id")
-    rid = run_id or inputs.run_id or new_run_id()
-    new = NewRun(
-        track=inputs.track,
-        reward_fn=inputs.reward_fn,
-        action_space=inputs.action_space,
-        hyperparams=inputs.hyperparams,
-        randomization=str(randomization) if randomization else None,
-        randomization_update=inputs.randomization,
-        worker_settings=worker_settings(worker_track, worker_config, workers, inputs.drfc),
+    flags = RunOptions.from_flags(
+        run_id=run_id,
+        store=store,
+        s3_endpoint=s3_endpoint,
+        redis_url=redis_url,
+        resume=resume,
+        track=track,
+        reward_fn=reward_fn,
+        action_space=action_space,
+        hyperparams=hyperparams,
+        randomization=randomization,
         seed=seed,
-        car=str(car_calibration) if car_calibration else None,
+        car_calibration=car_calibration,
         max_policy_lag=max_policy_lag,
         segment_steps=segment_steps,
-        pretrained=pretrained or inputs.pretrained,
-        race=inputs.race,
-    )
-    runs = RunStore(open_store(store, s3_endpoint))
-    run, files, notes = open_run(runs, rid, None if resume else new)
-    for line in notes + ([] if resume else drfc_lines(inputs.drfc)):
-        console.print(line, highlight=False, soft_wrap=True)
-    opts = TrainOptions(
-        workers,
-        redis_url,
-        store,
-        s3_endpoint,
-        limit,
-        resume,
+        pretrained=pretrained,
+        race=load_race(race, race_type),
+        workers=workers,
+        envs_per_worker=envs_per_worker,
+        time_limit_s=time_limit,
+        precision=precision,
+        device=device,
         evaluate=evaluate,
         eval_every=eval_every,
         eval_episodes=eval_episodes,
-        stop_when_robust=stop_when_robust,
         eval_tracks=eval_track or [],
-        precision=precision,
-        device=device,
-        envs_per_worker=envs_per_worker,
+        stop_when_robust=stop_when_robust,
         view=(view_host, view_port) if view else None,
     )
+    merged, drfc = merge_inputs(flags, from_drfc)
+    opts = merged.with_defaults()
+    opts = opts.model_copy(
+        update={
+            "run_id": opts.run_id or new_run_id(),
+            "worker_settings": worker_settings(worker_track, worker_config, opts.workers, drfc),
+        }
+    )
+    runs = RunStore(open_store(store, s3_endpoint))
+    run, files, notes = open_run(runs, opts)
+    for line in notes + ([] if resume else drfc_lines(drfc)):
+        console.print(line, highlight=False, soft_wrap=True)
     envs = f" × {envs_per_worker} envs" if envs_per_worker > 1 else ""
-    console.print(f"run [bold]{rid}[/]: {workers} workers{envs} on {run.env.track}, store {store}")
+    console.print(f"run [bold]{opts.run_id}[/]: {opts.workers} workers{envs} on {run.env.track}, store {store}")
     status = run_train(run, opts, files, console)
     try:
-        for line in [done_line(runs, rid, status.get("trained_s", 0.0)), *run_summary(rid, runs, store, s3_endpoint)]:
+        lines = [done_line(runs, run.run_id, status.get("trained_s", 0.0))]
+        for line in [*lines, *run_summary(run.run_id, runs, store, s3_endpoint)]:
             console.print(line, highlight=False, soft_wrap=True)
     except UserError as exc:  # the run is trained and saved; only its description failed
         console.print(f"[yellow]could not read the run's summary: {exc}", highlight=False)
@@ -162,9 +171,14 @@ def check(
 ) -> None:
     """Validate DeepRacer files exactly as racer train would, start nothing, and say what racer does with each."""
     from racer.check import check_files, merge_inputs
+    from racer.options import RunOptions
     from racer.runconfig import load_race
 
-    inputs = merge_inputs(track, reward_fn, action_space, hyperparams, from_drfc, load_race(race, race_type))
-    for line in check_files(inputs):
+    race_config = load_race(race, race_type)
+    flags = RunOptions.from_flags(
+        track=track, reward_fn=reward_fn, action_space=action_space, hyperparams=hyperparams, race=race_config
+    )
+    opts, drfc = merge_inputs(flags, from_drfc)
+    for line in check_files(opts, drfc):
         console.print(line, highlight=False, soft_wrap=True)
     console.print("ok: racer train would accept these files", highlight=False)
