@@ -64,8 +64,8 @@ def loop(
     json_out: JsonOut = None,
 ) -> None:
     """End-to-end throughput (env steps/s consumed by the trainer), policy propagation and memory, per N workers."""
-    from racer.bench import loop as bench
     from common.deadline import parse_duration
+    from racer.bench import loop as bench
 
     seconds = parse_duration(duration)
     counts = int_list(workers, "--workers")
@@ -88,8 +88,8 @@ def train(
     json_out: JsonOut = None,
 ) -> None:
     """Time and env steps from scratch to a robust lap (every evaluation lap completed), racer vs SB3 PPO."""
-    from racer.bench import train as bench
     from common.deadline import parse_duration
+    from racer.bench import train as bench
 
     seed_numbers, limit = int_list(seeds, "--seeds"), parse_duration(time_limit)
     hp = str(hyperparams) if hyperparams else None
@@ -199,8 +199,8 @@ def soak(
     json_out: JsonOut = None,
 ) -> None:
     """A long racer train run sampling Redis memory, keys, the stream and each role's memory: is it bounded?"""
-    from racer.bench import soak as bench
     from common.deadline import parse_duration
+    from racer.bench import soak as bench
 
     _show(bench.command(parse_duration(duration), workers, track, stream_maxlen), json_out)
 
