@@ -1,35 +1,65 @@
 """``racer export --format deepracer-car | deepracer-sim``: a racer checkpoint as the files DeepRacer's car and
 DeepRacer's simulators load, and the checks those loaders make, written from their code.
 
-The car (``deepracer-car``): a ``.tar.gz`` uploaded in the car's console. aws-deepracer-webserver-pkg
-``webserver_pkg/models.py: model_file_upload`` takes only names ending ``.tar.gz``; aws-deepracer-systems-pkg
-``model_loader_node.py: extract_archive`` unpacks it, ``get_model_list`` walks every folder for ``.pb`` files and
-``transfer_models`` ignores an archive with none or with more than one; ``model_install_state.py`` copies that file
-to ``artifacts/<name>/model.pb`` and reads ``model_metadata.json`` from the archive's top folder (``os.path.join(
-self.temp_directory, MODEL_METADATA_NAME)``), its ``sensor`` (``model_metadata_file_utils.get_sensors``: names of
-``SensorInputKeys``), ``training_algorithm`` (``clipped_ppo`` or ``sac``) and ``lidar_config``; the model optimizer
-(aws-deepracer-model-optimizer-pkg ``model_optimizer_node.py: convert_to_mo_cli``) then converts it with the input
-names of ``constants.py: NETWORK_INPUT_FORMAT_MAPPING`` and shapes [1, 120, 160, channels] or [1, lidar values].
-The archive racer writes is the simapp's model output folder (``/opt/ml/model``: ``agent/model.pb``,
-``tensorflow_model.py: copy_best_frozen_graph_to_sm_output_dir``) plus ``model_metadata.json`` at the top, as
-DRfC's ``scripts/upload/upload-car.sh`` tars it.
+Every check below names the upstream ``file:line`` it follows. The line numbers refer to these commits (the local
+mirrors under /work/.mirror; paths are relative to each repository's root)::
 
-The simulator (``deepracer-sim``): the folder DRfC's ``scripts/upload/upload-model.sh`` uploads and DeepRacer on
-AWS imports (aws-solutions/deepracer-on-aws ``source/docs/import/README.md``; ``ImportModel/constants.ts:
-REQUIRED_FILES_FOR_IMPORT``; ``import-workflow/utils/ImportHelper.ts``)::
+    name        repository (github.com/...)                       commit    paths below are under
+    webserver   aws-deepracer/aws-deepracer-webserver-pkg         43e05a7   webserver_pkg/webserver_pkg/
+    systems     aws-deepracer/aws-deepracer-systems-pkg           d0a9b6b   deepracer_systems_pkg/deepracer_systems_pkg/
+    ctrl        aws-deepracer/aws-deepracer-ctrl-pkg              30acc1c   ctrl_pkg/src/
+    optimizer   aws-deepracer/aws-deepracer-model-optimizer-pkg   d2b4a65   model_optimizer_pkg/model_optimizer_pkg/
+    inference   aws-deepracer/aws-deepracer-inference-pkg         36ca404   inference_pkg/src/
+    simapp      aws-deepracer-community/deepracer-simapp          01f5f015  bundle/
+    DRfC        aws-deepracer-community/deepracer-for-cloud       2eb1a1f   (the repository root)
+    DoA         aws-solutions/deepracer-on-aws                    61af778   source/
 
-    model/.coach_checkpoint                 the checkpoint's name, "<n>_Step-<steps>.ckpt" (rl_coach checkpoint.py:
-                                            CheckpointStateFile; upload-model.sh writes it the same way)
+The car (``deepracer-car``): a ``.tar.gz`` uploaded in the car's console. webserver ``models.py:663-667``
+(``model_file_upload``) takes only names ending ``.tar.gz`` and hands the folder to systems
+``model_loader_module/model_loader_node.py:709`` (``console_model_action`` -> ``transfer_models``), which unpacks it
+(``:385-391``, ``extract_archive``: gunzip, then untar), counts the model files in every folder (``:414-427``,
+``get_model_list``; ``:108`` makes the model extension the *string* ``".pb"``, so ``ext not in ".pb"`` at ``:419`` is
+a substring test and a file with no extension counts as a model too) and ignores an archive with none (``:576-579``)
+or with more than one (``:581-585``). ``model_install_state.py:101-110`` copies that file to
+``artifacts/<name>/model.pb`` (``model_loader_config.py:48-49``) and ``:115-123`` copies ``model_metadata.json`` from
+the archive's top folder if it is there. Loading the model (webserver ``models.py:524-570``, ``api_load_model``)
+reads that file and refuses it at the first failing step: ``sensor`` (``:232-269``, ``get_sensors``: names of
+``constants.py:189-199`` ``SensorInputKeys``), ``training_algorithm`` (``:272-304``; ``constants.py:228-232``),
+``action_space_type`` (``:307-339``; ``constants.py:256-260``), ``action_space`` (``:342-364``, then
+``:194-229`` ``validate_action_space``) and ``lidar_config`` (``:367-420``, ``load_lidar_configuration``). The
+systems-pkg reading of the same keys (``model_install_state.py:125-209``) does not run: ``model_loader_config.py:28``
+sets ``ENABLE_MODEL_OPTIMIZER = False``. The webserver's request (``models.py:600-616``) goes through ctrl
+``ctrl_state.cpp:163-172`` to optimizer ``model_optimizer_node.py:189-218`` (``convert_to_mo_cli``), which names the
+graph's inputs with ``constants.py:55-58`` and ``:63-70`` (``INPUT_HEAD_NAME_MAPPING``,
+``NETWORK_INPUT_FORMAT_MAPPING``) and shapes them [1, 120, 160, channels] (webserver ``constants.py:118-124``,
+optimizer ``constants.py:74-79``) or [1, lidar sectors] (webserver ``models.py:612-613``); inference
+``intel_inference_eng.cpp:90-91`` then reads the converted network's first output. The archive racer writes is the
+simapp's model output folder (``/opt/ml/model``, simapp
+``markov/boto/s3/files/checkpoint_files/tensorflow_model.py:46``: ``agent/model.pb``, ``:329-371``
+``copy_best_frozen_graph_to_sm_output_dir``) plus ``model_metadata.json`` at the top, as DRfC
+``scripts/upload/upload-car.sh:54-57`` tars it.
+
+The simulator (``deepracer-sim``): the folder DRfC ``scripts/upload/upload-model.sh`` uploads (``:198-227``) and
+DeepRacer on AWS imports (DoA ``docs/import/README.md:14-21``; website
+``apps/website/src/pages/ImportModel/constants.ts:4-11`` and ``ImportModel.tsx:49-56``; lambda
+``libs/lambda/src/import-workflow/utils/ImportHelper.ts:37-168``; then the simapp's validation container,
+``apps/infra/lib/constructs/import-workflow/importWorkflow.ts:103``, simapp ``markov/validation_worker.py:141-173``)::
+
+    model/.coach_checkpoint                 the checkpoint's name, "<n>_Step-<steps>.ckpt" (simapp rl_coach
+                                            ``rl_coach/rl_coach/checkpoint.py:119,254``; upload-model.sh:200)
     model/<n>_Step-<steps>.ckpt.index, .data-00000-of-00001, .meta
-                                            (multi_agent_graph_manager.py: save_checkpoint's "{}_Step-{}.ckpt")
-    model/model_<n>.pb                      the frozen graph (tensorflow_model.py: write_frozen_graph)
+                                            (simapp ``markov/multi_agent_coach/multi_agent_graph_manager.py:642``;
+                                            README.md:17; tensorflow_model.py:168-178 fetches them by that name)
+    model/model_<n>.pb                      the frozen graph (tensorflow_model.py:389-406; upload-model.sh:192)
     model/model_metadata.json, model/deepracer_checkpoints.json
-                                            (upload-model.sh: copies the one, writes the other's best and last)
+                                            (upload-model.sh:198 copies the one, :180 and :221 write the other's
+                                            best and last; the simapp validates model/model_metadata.json,
+                                            ``markov/boto/s3/constants.py:50``)
     model_metadata.json, reward_function.py, training_params.yaml
-                                            (upload-model.sh's uploads; README.md's required root files)
+                                            (upload-model.sh:223-227; README.md:18-20; ImportHelper.ts:38,54,139)
     ip/hyperparameters.json, hyperparameters.json
-                                            (upload-model.sh and ImportHelper.ts: ip/; the README lists it at the
-                                            root, and the website's check looks for the name anywhere)
+                                            (upload-model.sh:108,226 and ImportHelper.ts:69: ip/; README.md:21 lists
+                                            it at the root, and ImportModel.tsx:55-56 looks for the name anywhere)
 
 ``--upload s3://bucket/prefix`` puts that folder's files under the prefix with the same relative keys, as
 upload-model.sh lays them out.
@@ -39,6 +69,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import tarfile
 import tempfile
 import time
@@ -51,6 +82,7 @@ from common.action_space import ActionSpace
 from common.policy import ActorCritic, load_policy
 from deploy.deepracer_graph import (
     FRAME_SHAPE,
+    POLICY_NODE,
     DeepRacerModelError,
     SimappSession,
     input_node,
@@ -60,15 +92,31 @@ from deploy.deepracer_graph import (
 from model_store import RunStore
 
 CAR_MODEL_PATH = "agent/model.pb"
-"""Where the frozen graph goes in the car's archive (the simapp's ``/opt/ml/model/agent/model.pb``)."""
+"""Where the frozen graph goes in the car's archive (simapp ``tensorflow_model.py:46,371``:
+``/opt/ml/model/agent/model.pb``)."""
 CAR_SENSORS = ("observation", "LIDAR", "SECTOR_LIDAR", "LEFT_CAMERA", "FRONT_FACING_CAMERA", "STEREO_CAMERAS")
-"""The car's sensor names (webserver-pkg ``constants.py: SensorInputKeys``; systems-pkg the same)."""
+"""The car's sensor names (webserver ``constants.py:189-199`` ``SensorInputKeys``; systems ``constants.py:90-100``)."""
 CAR_ALGORITHMS = ("clipped_ppo", "sac")
-"""``training_algorithm`` values the car accepts (webserver-pkg ``constants.py: TrainingAlgorithms``)."""
+"""``training_algorithm`` values the car accepts (webserver ``constants.py:228-232`` ``TrainingAlgorithms``)."""
+CAR_LIDAR_KEYS = ("num_values", "min_angle", "max_angle", "min_distance", "max_distance", "clipping_distance")
+"""``lidar_config`` keys the car reads besides ``num_sectors`` (webserver ``models.py:394-415``; names at
+``constants.py:290-296``)."""
+CAR_LIDAR_SECTORS = {"LIDAR": 64, "SECTOR_LIDAR": 8}
+"""The lidar input's width without a ``lidar_config`` (webserver ``constants.py:318`` and ``:332``)."""
+CAR_CHANNELS = {"observation": 1, "LEFT_CAMERA": 1, "FRONT_FACING_CAMERA": 1, "STEREO_CAMERAS": 2}
+"""Each camera input's channels (optimizer ``constants.py:74-79`` ``INPUT_CHANNEL_SIZE_MAPPING``)."""
+CAR_HEADS = {"clipped_ppo": "main", "sac": "policy"}
+"""The network scope the car's inputs sit in (optimizer ``constants.py:55-58`` ``INPUT_HEAD_NAME_MAPPING``)."""
+CAR_OUTPUTS = {"clipped_ppo": POLICY_NODE, "sac": "main_level/agent/policy/online/network_0/sac_policy_head_0/policy"}
+"""The frozen graph's output per algorithm (simapp ``markov/boto/s3/constants.py:84-87``
+``FROZEN_HEAD_OUTPUT_GRAPH_FORMAT_MAPPING`` with agent ``agent``)."""
 SIM_REQUIRED = ("model_metadata.json", "reward_function.py", "training_params.yaml", "hyperparameters.json")
-"""DeepRacer on AWS's ``REQUIRED_FILES_FOR_IMPORT`` (website ``pages/ImportModel/constants.ts``)."""
+"""DeepRacer on AWS's ``REQUIRED_FILES_FOR_IMPORT`` (DoA ``apps/website/src/pages/ImportModel/constants.ts:6-11``)."""
 SIM_MAX_BYTES = 1024**3
-"""DeepRacer on AWS's ``MAX_FOLDER_SIZE`` (1 GB)."""
+"""DeepRacer on AWS's ``MAX_FOLDER_SIZE``, 1 GB (DoA ``apps/website/src/pages/ImportModel/constants.ts:4``)."""
+SIM_CAMERAS = ("observation", "FRONT_FACING_CAMERA", "LEFT_CAMERA", "STEREO_CAMERAS")
+SIM_LIDARS = ("LIDAR", "SECTOR_LIDAR", "DISCRETIZED_SECTOR_LIDAR")
+"""The simapp's camera and lidar sensor names (simapp ``markov/boto/s3/files/model_metadata.py:245-246,251``)."""
 
 
 def _load(runs: RunStore, run_id: str, checkpoint: str | int) -> tuple[ActorCritic, dict[str, Any], ActionSpace]:
@@ -221,74 +269,169 @@ def export_sim(
 # --- the loaders' checks --------------------------------------------------------------------------------------------
 
 
+def _range_ok(bounds: Any) -> bool:
+    """A continuous action range with both ends and low < high (webserver ``models.py:220-227``)."""
+    if not isinstance(bounds, dict) or not all(isinstance(bounds.get(k), int | float) for k in ("low", "high")):
+        return False
+    return bounds["high"] > bounds["low"]
+
+
 def metadata_problems(metadata: dict[str, Any], where: str) -> list[str]:
-    """What the car's loaders refuse in a model_metadata.json (webserver-pkg ``models.py``: ``get_sensors``,
-    ``get_training_algorithm``, ``get_action_space_type``, ``validate_action_space``)."""
+    """What the car refuses in a model_metadata.json when the model is loaded (webserver ``models.py:533-570``,
+    ``api_load_model``: each step below stops the load with a message)."""
     problems = []
+    # models.py:246-258: every name in "sensor" a SensorInputKeys member; models.py:259-263: no key -> observation.
     sensors = metadata.get("sensor", ["observation"])
+    if not isinstance(sensors, list):  # set() of it at models.py:247 fails or yields no member
+        problems.append(f"{where}: sensor {sensors!r} is not a list of names (get_sensors)")
+        sensors = []
     unknown = [s for s in sensors if s not in CAR_SENSORS]
     if unknown:
         problems.append(f"{where}: sensor {unknown[0]!r} is not one the car knows (get_sensors)")
+    # models.py:286-293: a TrainingAlgorithms member; models.py:294-298: no key -> clipped_ppo.
     if metadata.get("training_algorithm", "clipped_ppo") not in CAR_ALGORITHMS:
         problems.append(f"{where}: training_algorithm {metadata.get('training_algorithm')!r} (get_training_algorithm)")
+    # models.py:321-328: an ActionSpaceTypes member (constants.py:256-260); models.py:329-333: no key -> discrete.
     kind = metadata.get("action_space_type", "discrete")
     space = metadata.get("action_space")
-    if kind == "discrete":
-        if not isinstance(space, list) or not all("steering_angle" in a and "speed" in a for a in space):
+    if "action_space" not in metadata:  # models.py:356-359
+        problems.append(f"{where}: no action_space (get_action_space)")
+    elif kind == "discrete":  # models.py:207-212: every action has both keys
+        if not isinstance(space, list) or not all(
+            isinstance(a, dict) and {"steering_angle", "speed"} <= a.keys() for a in space
+        ):
             problems.append(f"{where}: a discrete action needs steering_angle and speed (validate_action_space)")
-    elif kind == "continuous":
-        ok = isinstance(space, dict) and all(
-            isinstance(space.get(k), dict) and space[k].get("high", 0) > space[k].get("low", 0)
-            for k in ("steering_angle", "speed")
-        )
-        if not ok:
+    elif kind == "continuous":  # models.py:213-228: both ranges, each with high and low, high > low
+        if not isinstance(space, dict) or not all(_range_ok(space.get(k)) for k in ("steering_angle", "speed")):
             problems.append(f"{where}: continuous ranges need low < high (validate_action_space)")
     else:
         problems.append(f"{where}: action_space_type {kind!r} (get_action_space_type)")
+    # models.py:392-415: a lidar model's lidar_config, when given, must hold every key (a KeyError stops the load).
+    config = metadata.get("lidar_config")
+    if any(s in tuple(CAR_LIDAR_SECTORS) for s in sensors) and config is not None:
+        missing = [k for k in (*CAR_LIDAR_KEYS, "num_sectors") if not isinstance(config, dict) or k not in config]
+        if missing:
+            problems.append(f"{where}: lidar_config has no {missing[0]} (load_lidar_configuration)")
     return problems
 
 
+def _car_input(sensor: str, algorithm: str) -> str:
+    """The graph input the car's model optimizer names for ``sensor`` (optimizer ``model_optimizer_node.py:209-212``
+    with ``constants.py:63-70``); for clipped_ppo the same as ``input_node``."""
+    return f"main_level/agent/{CAR_HEADS.get(algorithm, 'main')}/online/network_0/{sensor}/{sensor}"
+
+
+def _lidar_width(metadata: dict[str, Any], sensor: str) -> int:
+    """The lidar input's width the car asks for: ``lidar_config.num_sectors`` or the sensor's default (webserver
+    ``models.py:382-386,413-415,612-613``)."""
+    config = metadata.get("lidar_config")
+    if isinstance(config, dict) and isinstance(config.get("num_sectors"), int):
+        return config["num_sectors"]
+    return CAR_LIDAR_SECTORS.get(sensor, -1)
+
+
 def graph_problems(pb: bytes, metadata: dict[str, Any], where: str) -> list[str]:
-    """A frozen graph without the inputs the car's model optimizer names for the metadata's sensors
-    (``NETWORK_INPUT_FORMAT_MAPPING``, ``INPUT_SHAPE_FORMAT_MAPPING``) or without the simapp's policy output."""
-    from deploy.deepracer_graph import POLICY_NODE, tensorflow
+    """A frozen graph without the inputs the car's model optimizer names and shapes for the metadata's sensors
+    (optimizer ``model_optimizer_node.py:193-218``) or without the simapp's policy output (simapp
+    ``markov/boto/s3/constants.py:84-87``, frozen for it at ``tensorflow_model.py:401-404``)."""
+    from deploy.deepracer_graph import tensorflow
 
     tf = tensorflow("checking a DeepRacer model.pb")
     graph_def = tf.compat.v1.GraphDef()
     graph_def.ParseFromString(pb)
     nodes = {n.name: n for n in graph_def.node}
     problems = []
-    channels = {"FRONT_FACING_CAMERA": 1, "observation": 1, "LEFT_CAMERA": 1, "STEREO_CAMERAS": 2}
-    lidar = {"LIDAR": 64, "SECTOR_LIDAR": 8}
-    for sensor in metadata.get("sensor", ["observation"]):
-        node = nodes.get(input_node(sensor))
-        if node is None or node.op != "Placeholder":
-            problems.append(f"{where}: no placeholder {input_node(sensor)} (model optimizer --input)")
+    algorithm = metadata.get("training_algorithm", "clipped_ppo")
+    sensors = metadata.get("sensor", ["observation"])
+    # metadata_problems names a "sensor" that is not a list of names
+    for sensor in [s for s in sensors if isinstance(s, str)] if isinstance(sensors, list) else []:
+        name = _car_input(sensor, algorithm)
+        node = nodes.get(name)
+        if node is None or node.op != "Placeholder":  # the --input names (model_optimizer_node.py:209-218)
+            problems.append(f"{where}: no placeholder {name} (model optimizer --input)")
             continue
         dims = [d.size for d in node.attr["shape"].shape.dim]
-        want = [-1, *FRAME_SHAPE, channels[sensor]] if sensor in channels else [-1, lidar.get(sensor, -1)]
+        # --input_shape: [1, 120, 160, channels] (model_optimizer_node.py:201-208; webserver constants.py:118-119)
+        # or [1, lidar width] (model_optimizer_node.py:195-200); the graph's batch dimension is open.
+        want = (
+            [-1, *FRAME_SHAPE, CAR_CHANNELS[sensor]] if sensor in CAR_CHANNELS else [-1, _lidar_width(metadata, sensor)]
+        )
         if dims != want:
-            problems.append(f"{where}: {input_node(sensor)} has shape {dims}, the car feeds {want} (--input_shape)")
-    if POLICY_NODE not in nodes:
-        problems.append(f"{where}: no output {POLICY_NODE} (simapp FROZEN_HEAD_OUTPUT_GRAPH_FORMAT_MAPPING)")
+            problems.append(f"{where}: {name} has shape {dims}, the car feeds {want} (--input_shape)")
+    output = CAR_OUTPUTS.get(algorithm, POLICY_NODE)
+    if output not in nodes:
+        problems.append(f"{where}: no output {output} (simapp FROZEN_HEAD_OUTPUT_GRAPH_FORMAT_MAPPING)")
     return problems
+
+
+def _counts_as_model(name: str) -> bool:
+    """Whether the car's loader takes ``name`` for a model file: systems ``model_loader_node.py:418-420`` tests
+    ``ext not in ".pb"`` against the string of ``:108``, so ``.pb`` and no extension (also ``.`` and ``.p``) count."""
+    return os.path.splitext(name)[1] in ".pb"
 
 
 def car_archive_problems(path: str | Path) -> list[str]:
     """Every check the car's upload and loader make on an archive, as one line each (module docstring)."""
     path = Path(path)
-    if not path.name.endswith(".tar.gz"):
+    if not path.name.endswith(".tar.gz"):  # webserver models.py:663-667
         return [f"{path.name}: not a .tar.gz (webserver models.py model_file_upload)"]
-    with tarfile.open(path, "r:gz") as tar:
-        members = {m.name.removeprefix("./"): m for m in tar.getmembers() if m.isfile()}
-        pbs = [name for name in members if name.endswith(".pb")]
-        if len(pbs) != 1:
-            return [f"{path.name}: {len(pbs)} .pb files; the loader takes exactly one (transfer_models)"]
-        if "model_metadata.json" not in members:
-            return [f"{path.name}: no model_metadata.json at the top (model_install_state.py)"]
-        metadata = json.loads(tar.extractfile(members["model_metadata.json"]).read())  # type: ignore[union-attr]
-        pb = tar.extractfile(members[pbs[0]]).read()  # type: ignore[union-attr]
+    try:  # systems model_loader_node.py:385-397: gunzip then untar; a failure ignores the archive
+        with tarfile.open(path, "r:gz") as tar:
+            members = {m.name.removeprefix("./"): m for m in tar.getmembers() if m.isfile()}
+            top = members.get("model_metadata.json")
+            metadata_bytes = tar.extractfile(top).read() if top is not None else None  # type: ignore[union-attr]
+            pbs = [name for name in members if _counts_as_model(name)]
+            pb = tar.extractfile(members[pbs[0]]).read() if len(pbs) == 1 else b""  # type: ignore[union-attr]
+    except (tarfile.TarError, OSError, EOFError) as err:
+        return [f"{path.name}: not a gzipped tar ({err}) (extract_archive)"]
+    if len(pbs) != 1:  # model_loader_node.py:414-427 lists every folder; :576-585 refuse none and more than one
+        return [
+            f"{path.name}: {len(pbs)} model files (.pb or no extension); the loader takes exactly one (transfer_models)"
+        ]
+    # model_install_state.py:115-123 copies only the top folder's model_metadata.json; loading then reads it
+    # (webserver models.py:524-532, read_model_metadata_file at :181-184).
+    if metadata_bytes is None:
+        return [f"{path.name}: no model_metadata.json at the top (model_install_state.py)"]
+    try:
+        metadata = json.loads(metadata_bytes)
+    except ValueError as err:  # models.py:185-191
+        return [f"{path.name}: model_metadata.json is not JSON ({err}) (read_model_metadata_file)"]
     return metadata_problems(metadata, "model_metadata.json") + graph_problems(pb, metadata, pbs[0])
+
+
+def simapp_metadata_problems(metadata: dict[str, Any], where: str) -> list[str]:
+    """What the simapp's model validation refuses in model/model_metadata.json beyond the car's checks (simapp
+    ``markov/boto/s3/files/model_metadata.py:227-254``, run by ``markov/validation_worker.py:141-157``)."""
+    problems = []
+    if "action_space" not in metadata:  # model_metadata.py:227-228
+        problems.append(f"{where}: no action_space (simapp model_metadata.py)")
+    sensors = metadata.get("sensor", ["observation"])
+    sensors = sensors if isinstance(sensors, list) else []
+    if sum(s in SIM_CAMERAS for s in sensors) != 1:  # model_metadata.py:245-249
+        problems.append(f"{where}: sensor {sensors} needs exactly one camera (simapp model_metadata.py)")
+    if sum(s in SIM_LIDARS for s in sensors) > 1:  # model_metadata.py:251-254
+        problems.append(f"{where}: sensor {sensors} has more than one lidar (simapp model_metadata.py)")
+    return problems
+
+
+def _read(path: Path, parse: Any) -> Any:
+    """``parse`` of ``path``'s text, or None where it is absent or does not parse (its own check names it)."""
+    try:
+        return parse(path.read_text())
+    except (OSError, ValueError, yaml.YAMLError):
+        return None
+
+
+def _metadata(folder: Path, rel: str, problems: list[str]) -> dict[str, Any] | None:
+    """The JSON object in ``folder/rel``; None where it is absent (checked elsewhere) or, noted in ``problems``, not
+    one (DoA ImportHelper.ts:43 and simapp model_metadata.py:224 parse it)."""
+    if not (folder / rel).is_file():
+        return None
+    data = _read(folder / rel, json.loads)
+    if not isinstance(data, dict):
+        problems.append(f"{rel} is not a JSON object (JSON.parse / json.load)")
+        return None
+    return data
 
 
 def sim_folder_problems(folder: str | Path) -> list[str]:
@@ -296,31 +439,49 @@ def sim_folder_problems(folder: str | Path) -> list[str]:
     folder = Path(folder)
     files = [p for p in folder.rglob("*") if p.is_file()]
     names = {p.name for p in files}
+    # DoA ImportModel.tsx:54-56: each REQUIRED_FILES_FOR_IMPORT name anywhere in the folder (constants.ts:6-11).
     problems = [f"missing {name} (REQUIRED_FILES_FOR_IMPORT)" for name in SIM_REQUIRED if name not in names]
-    if sum(p.stat().st_size for p in files) > SIM_MAX_BYTES:
+    if sum(p.stat().st_size for p in files) > SIM_MAX_BYTES:  # ImportModel.tsx:49-52 (constants.ts:4)
         problems.append("over 1 GB (MAX_FOLDER_SIZE)")
+    # DoA ImportHelper.ts:38,54,69,139 read these keys (each throws when absent); upload-model.sh:223-227 puts them
+    # there; the simapp validation reads model/model_metadata.json (simapp markov/boto/s3/constants.py:50,
+    # validation_worker.py:141-144), which upload-model.sh:198 copies.
     for rel in ("model_metadata.json", "reward_function.py", "training_params.yaml", "ip/hyperparameters.json"):
         if not (folder / rel).is_file():
             problems.append(f"missing {rel} (ImportHelper.ts / upload-model.sh)")
+    if not (folder / "model" / "model_metadata.json").is_file():
+        problems.append("missing model/model_metadata.json (simapp MODEL_METADATA_S3_POSTFIX / upload-model.sh)")
+    # DoA docs/import/README.md:16; simapp markov/boto/s3/constants.py:295-296 and tensorflow_model.py:126.
     state = folder / "model" / ".coach_checkpoint"
     if not state.is_file():
         return [*problems, "missing model/.coach_checkpoint (README.md)"]
     name = state.read_text().strip()
     n = name.split("_Step")[0]
+    # simapp multi_agent_graph_manager.py:642 names checkpoints "{}_Step-{}.ckpt"; rl_coach checkpoint.py:254 needs
+    # the leading number and ".ckpt"; upload-model.sh:179 takes <n> as the part before the first "_".
     if not (n.isdigit() and name.endswith(".ckpt")):
         problems.append(f"model/.coach_checkpoint names {name!r}, not <n>_Step-<steps>.ckpt (save_checkpoint)")
-    for ext in (".index", ".data-00000-of-00001", ".meta"):
+    for ext in (".index", ".data-00000-of-00001", ".meta"):  # README.md:17; tensorflow_model.py:168-178
         if not (folder / "model" / (name + ext)).is_file():
             problems.append(f"missing model/{name}{ext} (README.md: ckpt index, data, meta)")
-    if not (folder / "model" / f"model_{n}.pb").is_file():
+    if not (folder / "model" / f"model_{n}.pb").is_file():  # upload-model.sh:192-193
         problems.append(f"missing model/model_{n}.pb (upload-model.sh)")
-    checkpoints = folder / "model" / "deepracer_checkpoints.json"
-    if not checkpoints.is_file() or json.loads(checkpoints.read_text())["last_checkpoint"]["name"] != name:
+    # upload-model.sh:178-180 and :221 write deepracer_checkpoints.json with best and last both the checkpoint.
+    checkpoints = _read(folder / "model" / "deepracer_checkpoints.json", json.loads)
+    named = [(checkpoints or {}).get(k) for k in ("best_checkpoint", "last_checkpoint")]
+    if not all(isinstance(c, dict) and c.get("name") == name for c in named):
         problems.append("model/deepracer_checkpoints.json does not name the checkpoint (upload-model.sh)")
-    metadata = json.loads((folder / "model_metadata.json").read_text()) if "model_metadata.json" in names else {}
-    params = yaml.safe_load((folder / "training_params.yaml").read_text()) if "training_params.yaml" in names else {}
-    if not (params or {}).get("WORLD_NAME"):
+    metadata = _metadata(folder, "model_metadata.json", problems)
+    params = _read(folder / "training_params.yaml", yaml.safe_load) or {}
+    if not (isinstance(params, dict) and params.get("WORLD_NAME")):  # DoA ImportHelper.ts:238-240 getTrackConfig
         problems.append("training_params.yaml has no WORLD_NAME (ImportHelper.ts getTrackConfig)")
-    if metadata.get("training_algorithm") == "sac" and metadata.get("action_space_type") != "continuous":
+    # SAC acts only in a continuous space: DoA docs/import/README.md:72-73; simapp
+    # markov/multi_agent_coach/agents/sac_agent.py:328-329.
+    if metadata and metadata.get("training_algorithm") == "sac" and metadata.get("action_space_type") != "continuous":
         problems.append("SAC needs a continuous action space (README.md: Algorithm mismatch)")
-    return problems + metadata_problems(metadata, "model_metadata.json")
+    model_metadata = _metadata(folder, "model/model_metadata.json", problems)
+    if model_metadata is not None:
+        problems += simapp_metadata_problems(model_metadata, "model/model_metadata.json")
+    if metadata is not None:
+        problems += metadata_problems(metadata, "model_metadata.json")
+    return problems
