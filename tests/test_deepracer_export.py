@@ -474,3 +474,42 @@ def test_front_camera_deep_networks_convert_with_dense_on_each_pixel(frames, net
     assert load_simapp_weights(fresh, weights, "test")
     again = racer_outputs(fresh, feeds)
     assert np.abs(again - ours).max() < 1e-5
+
+
+def test_the_cars_checks_count_model_files_and_metadata_keys_as_its_loader_does(tmp_path):
+    """No TensorFlow needed: the archive's model count (the loader's ``ext not in ".pb"`` also counts a file with no
+    extension) and the webserver's action_space key are checked before any graph is read."""
+    import io
+    import tarfile
+
+    from deploy.deepracer_format import car_archive_problems, metadata_problems
+
+    metadata = {
+        "sensor": ["FRONT_FACING_CAMERA"],
+        "neural_network": "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW",
+        "training_algorithm": "clipped_ppo",
+        "action_space_type": "discrete",
+        "action_space": [{"steering_angle": 0.0, "speed": 1.0}],
+        "version": "5",
+    }
+    assert not any("action_space" in p for p in metadata_problems(metadata, "m.json"))
+    without = {k: v for k, v in metadata.items() if k != "action_space"}
+    assert "m.json: no action_space (get_action_space)" in metadata_problems(without, "m.json")
+
+    def archive(name: str, files: dict[str, bytes]) -> Path:
+        path = tmp_path / name
+        with tarfile.open(path, "w:gz") as tar:
+            for member, data in files.items():
+                info = tarfile.TarInfo(member)
+                info.size = len(data)
+                tar.addfile(info, io.BytesIO(data))
+        return path
+
+    meta = json.dumps(metadata).encode()
+    two = archive("two.tar.gz", {"agent/model.pb": b"x", "LICENSE": b"y", "model_metadata.json": meta})
+    assert car_archive_problems(two) == [
+        "two.tar.gz: 2 model files (.pb or no extension); the loader takes exactly one (transfer_models)"
+    ]
+    no_meta = archive("nometa.tar.gz", {"agent/model.pb": b"x"})
+    assert any("model_metadata.json" in p for p in car_archive_problems(no_meta))
+    assert car_archive_problems(tmp_path / "model.zip")[0].startswith("model.zip: not a .tar.gz")
