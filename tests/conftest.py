@@ -9,8 +9,15 @@ import pytest
 import redis
 from moto.server import ThreadedMotoServer
 
+from common.tensorboard import tensorboard_without_tensorflow
 from racer.embedded_redis import EmbeddedRedis, free_port
 from tests.shared_data import HAVE_DEEPRACER_TRACKS, SHARED_TRACKS
+
+# TensorFlow's LLVM and Mesa's (MuJoCo's EGL renderer) cannot share a process (common/tensorboard.py): this process
+# reads TensorBoard files without TensorFlow, and the tests that load TensorFlow (tests/deepracer_tf/) run in a
+# pytest process of their own, which tests/test_deepracer_formats.py starts with RACER_TF_TESTS=1.
+tensorboard_without_tensorflow()
+collect_ignore = [] if os.environ.get("RACER_TF_TESTS") else ["deepracer_tf"]
 
 # DeepRacer's tracks by name, for the tests and every process they start: the shared folder's routes read in place
 # when it is there, an empty folder otherwise (never the user's own ~/.cache/racer/tracks). Set at import, before

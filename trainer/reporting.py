@@ -11,6 +11,7 @@ import time
 from common.bus import Bus
 from common.protocol import EpisodeSummary, Segment
 from common.retry import Outage
+from common.tensorboard import tensorboard_without_tensorflow
 from model_store import RunStore
 from model_store.runs import METRICS_FILE, local_run_dir
 from trainer.guard import EVALUATION_WINDOW, Stability
@@ -21,6 +22,7 @@ log = logging.getLogger("racer.trainer")
 
 def summary_writer(store: str, run_id: str):  # noqa: ANN201 - torch's SummaryWriter, imported late
     """A TensorBoard writer in the run's folder (TensorBoard writes local files: ./runs/<id>/ for an S3 store)."""
+    tensorboard_without_tensorflow()
     from torch.utils.tensorboard import SummaryWriter
 
     return SummaryWriter(log_dir=str(local_run_dir(store, run_id) / "tensorboard"))

@@ -31,6 +31,7 @@ from rich.table import Table
 
 from common.config import EnvConfig, RunConfig
 from common.defaults import DEFAULT_TRACK
+from common.tensorboard import tensorboard_without_tensorflow
 from model_store import LocalStore, RunStore
 from racer.bench import Report
 from racer.embedded_redis import EmbeddedRedis
@@ -217,6 +218,7 @@ def run_sb3(settings: BenchTrainSettings, seed: int, n_steps: int) -> LapRun:
     """SB3 PPO (CnnPolicy: NatureCNN, the same layers as DeepRacer's shallow network) on a SubprocVecEnv of
     ``workers`` envs, ``n_steps`` per env and update, evaluated after every update until a policy completes
     every evaluation lap."""
+    tensorboard_without_tensorflow()  # SB3's logger imports TensorBoard
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import SubprocVecEnv
@@ -338,6 +340,7 @@ def command(settings: BenchTrainSettings, progress: Console | None = None) -> Re
     build_run("bench-check", track=settings.track, hyperparams=settings.hyperparams)  # bad files fail here, in one line
     if settings.sb3:
         try:
+            tensorboard_without_tensorflow()  # SB3 imports TensorBoard
             import stable_baselines3  # noqa: F401
         except ImportError:
             raise OptionError("--sb3 needs Stable-Baselines3: pip install 'racer[bench]' (or pass --no-sb3)") from None
