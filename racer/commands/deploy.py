@@ -36,7 +36,7 @@ def export(
         typer.Option(
             "--format",
             help="onnx (racer's car runtime), deepracer-car (the DeepRacer car's .tar.gz) or deepracer-sim (a model "
-            "folder for DRfC / DeepRacer on AWS). The deepracer formats need: pip install 'racer\\[deepracer]'.",
+            "folder for DRfC / DeepRacer on AWS). The deepracer formats need TensorFlow: racer's deepracer extra.",
         ),
     ] = "onnx",
     upload: Annotated[
