@@ -456,9 +456,10 @@ def _embedder(tf: Any, x: Any, layout: Layout, sensor: str) -> Any:
                 x = tf.nn.conv2d(x, k, [1, stride, stride, 1], "VALID", name="Conv2D")
                 x = tf.nn.bias_add(x, b, name="BiasAdd")
             x = tf.nn.relu(x, name=f"BatchnormActivationDropout_{2 * i + 1}_activation")
-        for units, name in zip(layout.camera_dense, camera_dense_names(layout), strict=True):
-            activation = f"BatchnormActivationDropout_{int(name.split('_')[1]) + 1}_activation"
-            x = _dense(tf, x, name, units, True, activation)
+        # The camera's dense layers are numbered on after the convs: Dense_<2k>, then its activation at 2k + 1.
+        first = len(layout.convs)
+        for i, (units, name) in enumerate(zip(layout.camera_dense, camera_dense_names(layout), strict=True)):
+            x = _dense(tf, x, name, units, True, f"BatchnormActivationDropout_{2 * (first + i) + 1}_activation")
     else:
         for i, (units, name) in enumerate(zip(layout.lidar_dense, dense_names(len(layout.lidar_dense)), strict=True)):
             x = _dense(tf, x, name, units, True, f"BatchnormActivationDropout_{2 * i + 1}_activation")
