@@ -1,0 +1,96 @@
+"""The fitted calibration as a user reads it: each effect's value in its plain physical sense, with an interval.
+
+``car.json`` holds the parameters as the simulator applies them (``sim.actuation``); the report gives, beside
+them, what they mean for the car, relative to the calibrated car's own base:
+
+- steering offset: degrees added to the *command* (the file's offset is added after the steering gain, so it
+  is divided by that gain);
+- steering and speed gain: effective / commanded; dead time: s from a command step to the first response;
+  lag: the first-order time constant, s; understeer k: the effective angle is divided by 1 + k·v²;
+  saturation: the largest wheel angle, degrees; tyre friction: the friction coefficient.
+
+Each value comes with its standard error (cluster-robust by episode, from the fit) and a 95 % interval. Where
+the data cannot tell an effect from its nearest alternative (``sim.calibration.fit.PARTNERS``: a dead time
+from a lag at 15 Hz, understeer from a gain at one speed), the entry says ``ambiguous_with`` and gives what the
+data does determine: the total delay (dead time + time constant: the mean delay of the response) or the
+effective steering gain at the logs' speeds.
+"""
+
+from __future__ import annotations
+
+import math
+
+from common.car_calibration import EFFECTS, CarCalibration, CarEffect
+
+Z95 = 1.96
+"""Half-width of a 95 % interval, in standard errors."""
+
+MEANING = {
+    "steering_offset": ("offset_deg", "deg", "degrees added to the steering command"),
+    "steering_gain": ("gain", "", "effective / commanded steering angle"),
+    "steering_saturation": ("max_deg", "deg", "largest effective wheel angle"),
+    "steering_delay": ("delay_s", "s", "dead time from a steering command step to the first response"),
+    "steering_lag": ("tau_s", "s", "first-order time constant of the steering response"),
+    "speed_gain": ("gain", "", "effective / commanded speed"),
+    "speed_delay": ("delay_s", "s", "dead time from a speed command step to the first response"),
+    "speed_lag": ("tau_s", "s", "first-order time constant of the speed response"),
+    "understeer": ("k_s2pm2", "s²/m²", "the effective angle is divided by 1 + k·v²"),
+    "tyre_friction": ("mu", "", "tyre-ground friction coefficient (racer's car: 1.0)"),
+}
+"""Per effect: the parameter reported, its unit and what it means."""
+
+_DELAY_PAIRS = {"steering": ("steering_delay", "steering_lag"), "speed": ("speed_delay", "speed_lag")}
+
+
+def describe(
+    cal: CarCalibration, names: list[str], *, ambiguous: dict[str, str] | None = None, mean_v2: float = 1.0
+) -> list[dict]:
+    """Report entries for the effects ``names`` of ``cal``: the file's params and stderr, and the value in its
+    physical sense with its standard error and 95 % interval; ``ambiguous`` (effect → partner) adds
+    ``ambiguous_with`` and what the data determines. ``mean_v2``: the logs' mean squared speed, m²/s²."""
+    ambiguous = ambiguous or {}
+    out = []
+    for effect in [e for e in cal.effects if e.name in names]:
+        entry = effect.model_dump(exclude_none=True)
+        if effect.name in MEANING:
+            entry.update(_value(cal, effect))
+        if effect.name in ambiguous:
+            entry["ambiguous_with"] = [ambiguous[effect.name]]
+            entry["determined"] = determined(cal, effect.name, mean_v2)
+        out.append(entry)
+    return out
+
+
+def _value(cal: CarCalibration, effect: CarEffect) -> dict:
+    key, unit, meaning = MEANING[effect.name]
+    value, se = effect.params[key], (effect.stderr or {}).get(key)
+    if effect.name == "steering_offset":  # added after the gain in the file: in command degrees, divide by it
+        gain = cal.value("steering_gain", "gain")
+        value, se = value / gain, (se / gain if se is not None else None)
+    return {"value": round(value, 5), "unit": unit, "meaning": meaning, **_interval(value, se, effect.name, key)}
+
+
+def _interval(value: float, se: float | None, name: str, key: str) -> dict:
+    if se is None:
+        return {}
+    spec = EFFECTS[name].params[key]
+    lo = max(value - Z95 * se, spec.low) if name != "steering_offset" else value - Z95 * se
+    hi = min(value + Z95 * se, spec.high) if name != "steering_offset" else value + Z95 * se
+    return {"value_stderr": round(se, 5), "interval_95": [round(lo, 5), round(hi, 5)]}
+
+
+def determined(cal: CarCalibration, name: str, mean_v2: float) -> dict:
+    """What the data does determine where ``name`` and its partner cannot be told apart: the total delay of its
+    channel (dead time + lag time constant, s) or the effective steering gain at the logs' mean squared speed."""
+    for channel, (delay, lag) in _DELAY_PAIRS.items():
+        if name in (delay, lag):
+            total = cal.value(delay, "delay_s") + cal.value(lag, "tau_s")
+            se = math.hypot(_se(cal, delay, "delay_s"), _se(cal, lag, "tau_s"))
+            return {f"{channel}_total_delay_s": round(total, 5), "stderr": round(se, 5)}
+    gain = cal.value("steering_gain", "gain") / (1 + cal.value("understeer", "k_s2pm2") * mean_v2)
+    return {"steering_gain_at_logged_speeds": round(gain, 5), "mean_speed_squared_m2ps2": round(mean_v2, 4)}
+
+
+def _se(cal: CarCalibration, name: str, key: str) -> float:
+    effect = next((e for e in cal.effects if e.name == name), None)
+    return float((effect.stderr or {}).get(key, 0.0)) if effect is not None else 0.0
