@@ -15,8 +15,12 @@ from racer.commands.options import console, json_option, print_table, write_json
 
 def calibrate(
     logs: Annotated[
-        list[Path], typer.Argument(help="Measured logs: sim-trace CSVs, RoboMaker logs, plain CSVs, folders.")
-    ],
+        list[Path] | None,
+        typer.Argument(help="Measured logs: sim-trace CSVs, RoboMaker logs, plain CSVs, folders."),
+    ] = None,
+    plan: Annotated[
+        bool, typer.Option("--plan", help="Print the manoeuvres to drive so that every effect can be identified.")
+    ] = False,
     apply: Annotated[
         str | None, typer.Option("--apply", help="Score this car (NAME|FILE: a preset or a car.json) on LOGS.")
     ] = None,
@@ -35,25 +39,65 @@ def calibrate(
         str, typer.Option(help="Row durations: auto, nominal, logged or logged_previous (see docs/calibration.md).")
     ] = "auto",
 ) -> None:
-    """Fit the car to measured logs (effects, values, error before/after on held-out episodes), or --apply one."""
+    """Fit the car to measured logs (base car, effects, error before/after on held-out episodes), or --apply one;
+    --plan prints what to drive."""
     from racer.calibrate import run_calibrate
 
+    if plan:
+        from sim.calibration.plan import plan_text
+
+        print(plan_text())  # plain: the plan's lines are already wrapped, and a pipe must not re-wrap them
+        return
+    if not logs:
+        from common.errors import OptionError
+
+        raise OptionError("racer calibrate: give the logs to fit (or --plan for what to drive)")
     # Progress goes to stderr, so that --json - leaves standard output to the JSON alone.
     progress = Console(stderr=True, highlight=False).print
     report = run_calibrate(logs, apply, out, png, effects, track, max_windows, progress, timing, base=car)
     if json_out != "-":
-        table = Table("error (1 s replay)", "before", "after", "cut")
-        for key, unit in (("position_m", "m"), ("heading_deg", "deg"), ("speed_mps", "m/s")):
-            b, a = report["error_before"][key], report["error_after"][key]
-            table.add_row(f"{key.split('_')[0]} ({unit})", f"{b:.3f}", f"{a:.3f}", f"{100 * (1 - a / b):.0f}%")
-        print_table(table)
-        for e in report["effects"]:
-            errors = e.get("stderr") or {}
-            values = ", ".join(
-                f"{k} = {v:.3g}" + (f" ± {errors[k]:.2g}" if k in errors else "") for k, v in e["params"].items()
-            )
-            console.print(f"  {e['name']}: {values}")
+        _show_calibration(report)
     write_json(report, json_out)
+
+
+def _show_calibration(report: dict) -> None:
+    """The error table, the base car and the effects with their values, and what the report warns about."""
+    table = Table("error (1 s replay)", "before", "after", "cut")
+    for key, unit in (("position_m", "m"), ("heading_deg", "deg"), ("speed_mps", "m/s")):
+        b, a = report["error_before"][key], report["error_after"][key]
+        table.add_row(f"{key.split('_')[0]} ({unit})", f"{b:.3f}", f"{a:.3f}", f"{100 * (1 - a / b):.0f}%")
+    print_table(table)
+    for title, key in (("the car (base)", "base"), ("effects", "effects")):
+        entries = report.get(key) or []
+        if key == "base" and not entries:
+            continue
+        console.print(f"{title}:" + ("" if entries else " none"), markup=False)
+        for e in entries:
+            console.print(f"  {_effect_line(e)}", markup=False, highlight=False)
+    for item in report.get("identifiability", []):
+        if not item["identifiable"]:
+            console.print(f"  not identifiable: {item['effect']} (drive: {item['drive']})", markup=False)
+    structure = report.get("residual")
+    if structure and structure.get("structured"):
+        console.print("  the residual is structured, not noise: an effect racer lacks?", markup=False)
+        for where in structure.get("where", [])[:3]:
+            console.print(f"    {where.get('says', where)}", markup=False, highlight=False)
+
+
+def _effect_line(e: dict) -> str:
+    """``name: value ± stderr unit [95 % interval]`` (the file's params where there is no physical value)."""
+    if "value" not in e:
+        errors = e.get("stderr") or {}
+        return f"{e['name']}: " + ", ".join(
+            f"{k} = {v:.3g}" + (f" ± {errors[k]:.2g}" if k in errors else "") for k, v in e["params"].items()
+        )
+    line = f"{e['name']}: {e['value']:.4g}"
+    if "value_stderr" in e:
+        lo, hi = e["interval_95"]
+        line += f" ± {e['value_stderr']:.2g} {e['unit']} (95 %: {lo:.4g} to {hi:.4g})"
+    if e.get("ambiguous_with"):
+        line += f"; not told apart from {', '.join(e['ambiguous_with'])}: {e['determined']}"
+    return line
 
 
 def limit(

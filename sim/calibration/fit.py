@@ -37,6 +37,7 @@ import numpy as np
 
 from common.car_calibration import CANDIDATE_EFFECTS, EFFECTS, CarCalibration, CarEffect
 from sim.calibration.logs import LogError, Trajectory
+from sim.calibration.plan import identifiability, pairs_confounded
 from sim.calibration.replay import Replayer, Windows, detect_timing, make_windows, residuals
 from sim.calibration.response import command_response, simulate_open_loop
 from sim.calibration.values import describe
@@ -640,7 +641,7 @@ def calibrate(
     result = score(cal, parts["report"], replayer, timing)
     clock.lap("report")
     mean_v2 = float(np.mean(np.square(sel_w.measured()["speed"])))
-    ambiguous = {n: alt["with"] for n, alt in sel.alternatives.items()}
+    ambiguous = _ambiguous(sel, pairs_confounded(trajectories), effect_names)
     base_cal = cal.model_copy(update={"effects": [e for e in cal.effects if e.name in base_names]})
     base_res = residuals(replayer.replay(result.windows, base_cal), result.replays["measured"])
     result.report.update(
@@ -648,6 +649,7 @@ def calibrate(
             "base": describe(cal, base_names, mean_v2=mean_v2),
             "effects": describe(cal, effect_names, ambiguous=ambiguous, mean_v2=mean_v2),
             "error_base": error_summary(base_res),
+            "identifiability": identifiability(trajectories),
             "alternatives": [
                 {
                     "effect": n,
@@ -675,6 +677,18 @@ def calibrate(
     clock.lap("base")
     result.report["seconds"] = clock.laps
     return result
+
+
+def _ambiguous(sel: Selection, confounded: list[list[str]], effects: list[str]) -> dict[str, list[str]]:
+    """Per reported effect, the effects the data cannot tell it from: a partner that explains the held-out
+    episodes about as well (``Selection.alternatives``), and pairs the logs lack the manoeuvres to separate
+    (``sim.calibration.plan.pairs_confounded``: e.g. understeer and the steering gain at one speed)."""
+    out: dict[str, set[str]] = {n: {alt["with"]} for n, alt in sel.alternatives.items() if n in effects}
+    for a, b in confounded:
+        for name, other in ((a, b), (b, a)):
+            if name in effects and sel.calibration.has(name):
+                out.setdefault(name, set()).add(other)
+    return {n: sorted(v) for n, v in out.items()}
 
 
 def _beyond_same_kind(cal: CarCalibration, name: str) -> bool:

@@ -43,11 +43,12 @@ _DELAY_PAIRS = {"steering": ("steering_delay", "steering_lag"), "speed": ("speed
 
 
 def describe(
-    cal: CarCalibration, names: list[str], *, ambiguous: dict[str, str] | None = None, mean_v2: float = 1.0
+    cal: CarCalibration, names: list[str], *, ambiguous: dict[str, list[str]] | None = None, mean_v2: float = 1.0
 ) -> list[dict]:
     """Report entries for the effects ``names`` of ``cal``: the file's params and stderr, and the value in its
-    physical sense with its standard error and 95 % interval; ``ambiguous`` (effect → partner) adds
-    ``ambiguous_with`` and what the data determines. ``mean_v2``: the logs' mean squared speed, m²/s²."""
+    physical sense with its standard error and 95 % interval. ``ambiguous`` (effect → the effects the data cannot
+    tell it from) adds ``ambiguous_with`` and what the data determines. ``mean_v2``: the logs' mean squared
+    speed, m²/s²."""
     ambiguous = ambiguous or {}
     out = []
     for effect in [e for e in cal.effects if e.name in names]:
@@ -55,7 +56,7 @@ def describe(
         if effect.name in MEANING:
             entry.update(_value(cal, effect))
         if effect.name in ambiguous:
-            entry["ambiguous_with"] = [ambiguous[effect.name]]
+            entry["ambiguous_with"] = sorted(ambiguous[effect.name])
             entry["determined"] = determined(cal, effect.name, mean_v2)
         out.append(entry)
     return out
