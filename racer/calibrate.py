@@ -10,7 +10,7 @@ import numpy as np
 from common.car_calibration import EFFECTS, CarCalibration, load_car, save_calibration
 from common.errors import OptionError
 from sim.calibration import read_logs
-from sim.calibration.fit import Result, calibrate, score
+from sim.calibration.fit import MAX_FIT_WINDOWS, Result, calibrate, score
 from sim.calibration.logs import LogError
 from sim.calibration.replay import TIMINGS
 
@@ -22,7 +22,7 @@ def run_calibrate(
     png: Path | None = None,
     effects: list[str] | None = None,
     track: str | None = None,
-    max_windows: int = 400,
+    max_windows: int | None = None,
     say: Callable[[str], None] = print,
     timing: str = "auto",
     base: str | Path | None = None,
@@ -47,7 +47,7 @@ def run_calibrate(
         result.report["fit_on"] = []  # nothing was fitted here: the calibration came from elsewhere
         result.report["calibration"] = str(apply)
     else:
-        result = calibrate(trajectories, effects, max_windows, say, timing, base_car)
+        result = calibrate(trajectories, effects, max_windows or MAX_FIT_WINDOWS, say, timing, base_car)
         if out is not None:
             save_calibration(result.calibration, out)
             say(f"wrote {out}")
@@ -66,7 +66,7 @@ def plot_calibration(result: Result, path: Path, episodes: int = 3) -> None:
 
     fig, axes = plt.subplots(2, 2, figsize=(12, 9))
     _plot_paths(axes[0, 0], result, episodes)
-    t = np.cumsum(np.median(result.windows.durations(), axis=0))
+    t_all = np.cumsum(np.median(result.windows.durations(), axis=0))
     res = {k: _residual(result, k) for k in ("before", "after")}
     panels = [
         (axes[0, 1], "position error (m)", lambda r: np.hypot(r["dx"], r["dy"])),
@@ -76,6 +76,7 @@ def plot_calibration(result: Result, path: Path, episodes: int = 3) -> None:
     for ax, label, metric in panels:
         for key, color, name in (("before", "tab:red", "uncalibrated"), ("after", "tab:blue", "calibrated")):
             m = metric(res[key])
+            t = t_all[-m.shape[1] :]  # a speed is measured over the rows that end at its sample
             ax.plot(t, np.sqrt(np.mean(m**2, axis=0)), color=color, label=f"{name}: RMS")
             ax.fill_between(t, *np.percentile(m, [25, 75], axis=0), color=color, alpha=0.15, label=f"{name}: 25–75 %")
         ax.set_xlabel("time into the replay window (s)")

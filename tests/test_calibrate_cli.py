@@ -72,7 +72,12 @@ def test_apply_scores_a_calibration_on_other_logs(fitted, ros1, tmp_path):
     report = json.loads(out.read_text())
     assert report["fit_on"] == []
     assert [f["file"] for f in report["evaluated_on"]] == [str(ros1)]
-    assert report["effects"] == fitted["report"]["effects"]
+    # The car applied is the car fitted: its base and its effects, each with the values the fit reported.
+    fitted_car = fitted["report"]["base"] + fitted["report"]["effects"]
+    assert sorted((e["name"], e["params"]) for e in report["effects"]) == sorted(
+        (e["name"], e["params"]) for e in fitted_car
+    )
+    assert all("value" in e for e in report["effects"])
     # Scored on every window of the log, the calibrated car still beats the uncalibrated one.
     assert report["error_after"]["position_m"] < report["error_before"]["position_m"]
 

@@ -20,7 +20,7 @@ import pytest
 from common.car_calibration import CarCalibration, load_calibration
 from common.config import EnvConfig
 from sim.calibration import read_log
-from sim.calibration.fit import calibrate, score
+from sim.calibration.fit import BASE_EFFECTS, PARTNERS, calibrate, score
 from sim.calibration.logs import Trajectory
 from sim.calibration.replay import Replayer, detect_timing, make_windows, residuals
 from sim.calibration.response import command_response
@@ -117,15 +117,23 @@ CASES = [
 def test_calibration_names_and_measures_an_undeclared_effect(tmp_path, effect, value, param, rtol):
     trajectories = read_log(write_log(tmp_path / "car.csv", effect, value))
     result = calibrate(trajectories, max_windows=120, progress=lambda _: None)
-    found = {e.name: e.params for e in result.calibration.effects}
-    assert list(found) == [effect], f"found {found}"
-    assert found[effect][param] == pytest.approx(value, rel=rtol)
-    # The report's rounds account for the result: what was chosen and not dropped since, at most.
+    found = {e["name"]: e["params"] for e in result.report["effects"]}
+    partner = PARTNERS.get(effect)
+    assert set(found) - {partner} == {effect}, f"found {found}"
+    if partner in found:  # a dead time and a lag both chosen: together they give the delay, and say so
+        total = next(e for e in result.report["effects"] if e["name"] == effect)["determined"]
+        assert next(v for k, v in total.items() if k.endswith("total_delay_s")) == pytest.approx(value, rel=rtol)
+    else:
+        assert found[effect][param] == pytest.approx(value, rel=rtol)
+    # The report's rounds account for the result: what was chosen and not dropped since, or the base car's fit.
     rounds = result.report["selection"]
     chosen = {r["chosen"] for r in rounds if r["chosen"]} - {name for r in rounds for name in r["dropped"]}
-    assert set(found) <= chosen
-    stderr = result.calibration.effects[0].stderr[param]
+    assert set(found) <= chosen | set(BASE_EFFECTS)
+    entry = next(e for e in result.report["effects"] if e["name"] == effect)
+    stderr = entry["stderr"][param]
     assert 0 < stderr < 0.5 * value  # an uncertainty is reported, and it is smaller than the value
+    lo, hi = entry["interval_95"]
+    assert lo < entry["value"] < hi
     before, after = result.report["error_before"], result.report["error_after"]
     assert after["position_m"] < 0.5 * before["position_m"]
     assert after["heading_deg"] < 0.5 * before["heading_deg"] or effect == "speed_lag"
@@ -140,7 +148,9 @@ def test_calibration_names_and_measures_an_undeclared_effect(tmp_path, effect, v
 def test_clean_car_gets_no_effect(tmp_path):
     trajectories = read_log(write_log(tmp_path / "clean.csv", None, 0.0))
     result = calibrate(trajectories, max_windows=120, progress=lambda _: None)
-    assert result.calibration.effects == []
+    assert result.report["effects"] == []
+    # racer's own car is its own base: no grip, geometry or speed scale that pays on the held-out windows
+    assert result.report["base"] == []
     # The simulator's own car replays its own log closely: what is left is the noise and the initial state.
     assert result.report["error_before"]["position_m"] < 0.05
     assert result.report["error_before"]["heading_deg"] < 3.0

@@ -261,6 +261,22 @@ def view(
     _show(bench.command(seconds, repeats, track), json_out)
 
 
+@app.command("calibrate")
+def calibrate(
+    logs: Annotated[
+        list[Path] | None, typer.Argument(help="Logs to calibrate (default: a synthetic 45-episode log).")
+    ] = None,
+    repeats: Annotated[int, typer.Option(min=1, help="Calibrations per log; the median time is reported.")] = 3,
+    threads: Annotated[int, typer.Option(min=1, help="Replay threads; 1 pins the process to one core.")] = 1,
+    max_windows: Annotated[int | None, typer.Option(min=20, help="Replay windows to fit on; default 120.")] = None,
+    json_out: JsonOut = None,
+) -> None:
+    """Seconds racer calibrate takes for one log, and its parts."""
+    from racer.bench import calibrate as bench
+
+    _show(bench.command(logs or [], repeats=repeats, threads=threads, max_windows=max_windows), json_out)
+
+
 def _show(report: Report, json_out: str | None) -> None:
     """Print a benchmark's tables and lines, in order, and write its result as JSON if asked."""
     for item in report.shown:

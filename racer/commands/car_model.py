@@ -34,7 +34,9 @@ def calibrate(
         list[str] | None, typer.Option("--effect", help="Candidate effect (repeatable; default: all of them).")
     ] = None,
     track: Annotated[str | None, typer.Option(help="Track the logs were driven on (for the picture).")] = None,
-    max_windows: Annotated[int, typer.Option(min=20, help="Replay windows to fit on (and to choose on).")] = 400,
+    max_windows: Annotated[
+        int | None, typer.Option(min=20, help="Replay windows to fit on (and to choose on); default 120.")
+    ] = None,
     timing: Annotated[
         str, typer.Option(help="Row durations: auto, nominal, logged or logged_previous (see docs/calibration.md).")
     ] = "auto",

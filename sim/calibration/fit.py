@@ -38,7 +38,8 @@ import numpy as np
 from common.car_calibration import CANDIDATE_EFFECTS, EFFECTS, CarCalibration, CarEffect
 from sim.calibration.logs import LogError, Trajectory
 from sim.calibration.plan import identifiability, pairs_confounded
-from sim.calibration.replay import Replayer, Windows, detect_timing, make_windows, residuals
+from sim.calibration.replay import SPEED_ROWS, Replayer, Windows, detect_timing, make_windows, residuals
+from sim.calibration.residual import residual_structure
 from sim.calibration.response import command_response, simulate_open_loop
 from sim.calibration.values import describe
 
@@ -48,8 +49,9 @@ PENALTY_PER_PARAM = 0.03
 """An effect must cut the held-out cost by more than this fraction of it per parameter it adds."""
 MIN_Z = 2.0
 """An effect is chosen only if a parameter is more than this many standard errors from its identity value."""
-MAX_FIT_WINDOWS = 400
-"""Windows used to fit parameters (and as many to choose effects): evenly spread over the episodes."""
+MAX_FIT_WINDOWS = 120
+"""Windows used to fit parameters (and as many to choose effects): evenly spread over the episodes. 120 windows of
+15 rows hold ~1,800 samples per channel: parameters to a few per cent, a replay in ~0.4 s on one core."""
 MAX_ITER = 8
 """Levenberg-Marquardt iterations allowed per fit (one replay each, after a first Jacobian)."""
 STEP_TOL = 0.01
@@ -126,8 +128,8 @@ class Objective:
 
     def vector(self, res: dict[str, np.ndarray]) -> np.ndarray:
         """Normalized residual vector: its squared norm is the cost."""
-        n = res["dx"].size
-        sp, sh, sv = (np.sqrt(self.scales[k] * n) for k in ("pos", "heading", "speed"))
+        sp, sh = (np.sqrt(self.scales[k] * res["dx"].size) for k in ("pos", "heading"))
+        sv = np.sqrt(self.scales["speed"] * res["dspeed"].size)
         return np.concatenate(
             [
                 (res["dx"] / sp).ravel(),
@@ -143,8 +145,10 @@ class Objective:
 
     def clusters(self) -> np.ndarray:
         """The episode of each entry of :meth:`vector`."""
-        per_window = np.repeat(self.windows.episode_keys(), self.windows.horizon)
-        return np.tile(per_window, 4)
+        keys = self.windows.episode_keys()
+        per_window = np.repeat(keys, self.windows.horizon)
+        per_speed = np.repeat(keys, self.windows.horizon - SPEED_ROWS + 1)
+        return np.concatenate([per_window, per_window, per_window, per_speed])
 
 
 def channel_scales(res: dict[str, np.ndarray]) -> dict[str, float]:
@@ -294,12 +298,28 @@ def _cluster_stderr(jac: np.ndarray, r: np.ndarray, clusters: np.ndarray) -> np.
 BASE_EFFECTS = ("tyre_friction", "steering_gain", "speed_gain")
 """What makes a logged car differ from racer's in kind, fitted first as "the car": its grip, its steering
 geometry (the wheel angle a command gives) and its speed scale."""
-SAME_KIND_GAIN = (0.85, 1.15)
-"""A fitted base gain within this band is the car's geometry; one outside it is reported as an effect (a car of
-DeepRacer's kind does not steer 15 % more or less than commanded by design). One log cannot tell a gain of the
-car from an undeclared gain effect; a base fitted on a clean log (``--car``) can."""
+SAME_KIND: dict[str, tuple[float, float]] = {
+    "steering_gain": (0.85, 1.15),
+    "speed_gain": (0.85, 1.15),
+    "steering_offset": (-0.5, 0.5),
+    "steering_delay": (0.0, 0.05),
+    "steering_lag": (0.0, 0.05),
+    "speed_delay": (0.0, 0.05),
+    "speed_lag": (0.0, 0.05),
+    "steering_saturation": (25.0, 30.0),
+    "understeer": (0.0, 0.05),
+}
+"""What a car of DeepRacer's kind has by construction, as each effect's first parameter: a steering ratio and a
+speed scale within 15 %, a servo or motor that responds within 50 ms (less than a 15 Hz row), the mechanical
+steering stop near 30°. Without a given base car (``--car``), a fitted value inside its range is reported as part
+of the car (``"base"``), one outside as an undeclared effect (``"effects"``). One log cannot tell the car's own
+small lag from an undeclared one of the same size: a base fitted on a clean log and given with ``--car`` can,
+and then everything fitted on top of it is reported as an effect."""
 SCREEN_TOP = 2
 """Candidates fitted in full each round: the most promising by :func:`score_test`."""
+MIN_GAIN = 0.5 * PENALTY_PER_PARAM
+"""A candidate is fitted only if its screening promises to remove this fraction of the fit cost (half the penalty
+it would pay on the held-out windows: the screening's one step may fall short of the fit)."""
 AMBIGUOUS_MARGIN = 0.05
 """An alternative explanation whose held-out cost is within this fraction of the chosen one's is one the data
 cannot tell apart from it."""
@@ -382,15 +402,20 @@ def select_effects(
     base_names = [e.name for e in base.effects if EFFECTS[e.name].candidate]
     base_names += [n for n in BASE_EFFECTS if n in pool and n not in base_names]
     fit = fit_effects(fit_obj, base_names, base)
-    current = _identity_if_insignificant(fit.calibration, base_names, base)
-    current_cost = sel_obj.cost(current)
+    current, current_cost = _prune(fit.calibration, sel_obj, [n for n in base_names if not base.has(n)], progress)
+    base_names = [n for n in base_names if current.has(n)]
     progress(f"the base car ({', '.join(base_names)}): held-out cost {current_cost:.3f}")
-    remaining = [c for c in pool if c not in base_names]
+    remaining = [c for c in pool if c not in base_names and c not in BASE_EFFECTS]
     chosen: list[str] = []
     rounds: list[Round] = []
     while remaining:
         gains = score_test(fit_obj, current, remaining)
-        top = sorted(remaining, key=lambda n: -gains[n])[:SCREEN_TOP]
+        fit_cost = fit_obj.cost(current)
+        top = [n for n in sorted(remaining, key=lambda n: -gains[n])[:SCREEN_TOP] if gains[n] > MIN_GAIN * fit_cost]
+        if not top:  # no candidate promises what it would have to pay: nothing left to fit
+            screened = [{"name": n, "screen_gain": round(gains[n], 5)} for n in remaining]
+            rounds.append(Round(screened, None, current_cost))
+            break
         tried = []
         for name in top:
             f = fit_effects(fit_obj, [name], current)
@@ -431,15 +456,27 @@ def select_effects(
             current_cost = sel_obj.cost(current)
             rounds[-1].dropped = weak
         progress(f"chose {best['name']}: held-out cost {current_cost:.3f}")
+    current, current_cost = _prune(current, sel_obj, chosen, progress)  # what no longer pays after the refits
+    chosen = [n for n in chosen if current.has(n)]
     alternatives = _alternatives(fit_obj, sel_obj, current, current_cost, chosen, base_names)
     return Selection(current, current_cost, rounds, base_names, alternatives)
 
 
-def _identity_if_insignificant(cal: CarCalibration, names: list[str], base: CarCalibration) -> CarCalibration:
-    """Fitted base effects that the data leaves within :data:`MIN_Z` standard errors of doing nothing are left
-    out (a given car's design values stay): the car as modelled already is that car."""
-    drop = [n for n in names if not base.has(n) and _z_score(cal, n) <= MIN_Z]
-    return cal.model_copy(update={"effects": [e for e in cal.effects if e.name not in drop]})
+def _prune(
+    cal: CarCalibration, sel_obj: Objective, names: list[str], progress: Callable[[str], None]
+) -> tuple[CarCalibration, float]:
+    """Leave out each of the effects ``names`` that does not pay on the held-out windows: one whose removal costs
+    less than :data:`PENALTY_PER_PARAM` per parameter of the held-out cost (the car as modelled already is that
+    car; a standard error alone would keep a gain of 1.004 ± 0.001 that a replay's own bias gives)."""
+    cost = sel_obj.cost(cal)
+    for name in names:
+        without = cal.model_copy(update={"effects": [e for e in cal.effects if e.name != name]})
+        cost_without = sel_obj.cost(without)
+        if cost < cost_without * (1 - PENALTY_PER_PARAM * len(EFFECTS[name].params)):
+            continue
+        progress(f"left out {name}: held-out cost {cost_without:.3f} without it ({cost:.3f} with)")
+        cal, cost = without, cost_without
+    return cal, cost
 
 
 def _alternatives(
@@ -539,7 +576,7 @@ def score(
     before, after = replayer.replay(windows), replayer.replay(windows, calibration)
     res_b, res_a = residuals(before, meas), residuals(after, meas)
     report = {
-        "effects": [e.model_dump(exclude_none=True) for e in calibration.effects],
+        "effects": describe(calibration, [e.name for e in calibration.effects]),
         "error_before": error_summary(res_b),
         "error_after": error_summary(res_a),
         "evaluated_on": sources(trajectories),
@@ -548,6 +585,8 @@ def score(
         "row_timing": windows.timing,
         "breakdown_before": breakdown(res_b, windows),
         "breakdown_after": breakdown(res_a, windows),
+        # What is left after the calibration, noise or structure, and where: the pointer to a missing effect.
+        "residual": residual_structure(res_a, windows),
     }
     # The response shape (sim.calibration.response): measured, and the model driven open loop by the same
     # commands, before and after. Where they differ, an effect is missing; what none explains is noise.
@@ -616,18 +655,20 @@ def calibrate(
     progress: Callable[[str], None] = log.info,
     timing: str = "auto",
     base: CarCalibration | None = None,
+    threads: int | None = None,
 ) -> Result:
     """Choose and fit the effects on part of the episodes; score before and after on episodes it did not use.
 
     ``base``: the car to start from; its effects are kept as they are and others are chosen on top of it.
-    "before" is always the car as modelled (no effects), so that scores compare with the default car's."""
+    "before" is always the car as modelled (no effects), so that scores compare with the default car's.
+    ``threads``: the replay's threads (default: up to 4, one per core)."""
     clock = _Clock()
     if timing == "auto":
         timing = detect_timing(trajectories)  # one rule for all parts, decided on all the logs given
     parts = split_episodes(trajectories)
     if not all(parts.values()):
         raise LogError(f"need at least 4 usable episodes to fit, choose and report apart; got {len(trajectories)}")
-    replayer = Replayer()
+    replayer = Replayer(nthread=threads)
     fit_w, sel_w = fit_windows(parts, max_windows, timing)
     scales = channel_scales(residuals(replayer.replay(fit_w), fit_w.measured()))
     progress(f"fit on {len(fit_w)} windows, choose on {len(sel_w)}; uncalibrated fit cost 3.000")
@@ -636,7 +677,10 @@ def calibrate(
     sel = select_effects(fit_obj, sel_obj, candidates, progress, base)
     clock.lap("selection")
     cal = sel.calibration
-    base_names = [n for n in sel.base if cal.has(n) and not _beyond_same_kind(cal, n)]
+    base_names = [n for n in sel.base if cal.has(n)]
+    if base is None or not base.effects:
+        base_names += [e.name for e in cal.effects if e.name not in base_names and _same_kind(cal, e.name)]
+    base_names = [n for n in base_names if n == "tyre_friction" or _same_kind(cal, n) or base is not None]
     effect_names = [e.name for e in cal.effects if e.name not in base_names]
     result = score(cal, parts["report"], replayer, timing)
     clock.lap("report")
@@ -684,6 +728,10 @@ def _ambiguous(sel: Selection, confounded: list[list[str]], effects: list[str]) 
     episodes about as well (``Selection.alternatives``), and pairs the logs lack the manoeuvres to separate
     (``sim.calibration.plan.pairs_confounded``: e.g. understeer and the steering gain at one speed)."""
     out: dict[str, set[str]] = {n: {alt["with"]} for n, alt in sel.alternatives.items() if n in effects}
+    for name in effects:  # a dead time and a lag chosen together: a split of one delay that 15 Hz barely sees
+        partner = PARTNERS.get(name)
+        if partner in effects and name.endswith(("_delay", "_lag")):
+            out.setdefault(name, set()).add(partner)
     for a, b in confounded:
         for name, other in ((a, b), (b, a)):
             if name in effects and sel.calibration.has(name):
@@ -691,12 +739,14 @@ def _ambiguous(sel: Selection, confounded: list[list[str]], effects: list[str]) 
     return {n: sorted(v) for n, v in out.items()}
 
 
-def _beyond_same_kind(cal: CarCalibration, name: str) -> bool:
-    """A base gain outside :data:`SAME_KIND_GAIN`: reported as an effect, not as the car's geometry."""
-    if name not in ("steering_gain", "speed_gain"):
-        return False
-    lo, hi = SAME_KIND_GAIN
-    return not lo <= cal.value(name, "gain") <= hi
+def _same_kind(cal: CarCalibration, name: str) -> bool:
+    """Whether the effect's value lies in :data:`SAME_KIND`, what a car of DeepRacer's kind has by construction
+    (an effect with no range there, the tyres' grip, is always the car's)."""
+    if name not in SAME_KIND:
+        return name == "tyre_friction"
+    lo, hi = SAME_KIND[name]
+    key = next(iter(EFFECTS[name].params))
+    return lo <= cal.value(name, key) <= hi
 
 
 class _Clock:

@@ -14,8 +14,13 @@ distance of row k follows ``t[k] - t[k-1]`` (the positions trail the time stamps
 with honest time stamps follows its own steps ``t[k+1] - t[k]``.
 
 The residual of a window, per sample i = 1 … H: ``dx``, ``dy`` (m) of the reference point, ``dheading`` (deg,
-wrapped) and ``dspeed`` (m/s): the speed of the reference point over row i-1 → i (distance / period),
-simulated minus measured. Many windows run at once through ``mujoco.rollout`` (C, one thread per core).
+wrapped) and ``dspeed`` (m/s): the speed of the reference point over :data:`SPEED_ROWS` rows ending at
+sample i (path length / duration; H - SPEED_ROWS + 1 values per window), simulated minus measured. Why over
+several rows: in DeepRacer's logs each pose is read at a moment that wanders by ~3.3 ms (ROS1; ~8 ms ROS2) from
+its row's, a noise along the path that the logged time stamps do not carry; over one row (1/15 s) it is
+0.08–0.09 m/s of the speed at DeepRacer's speeds, most of what a one-row speed error measures, and no car
+can explain it. Over three rows it is a third of that, while a speed lag of 0.1 s still shows. Many windows run
+at once through ``mujoco.rollout`` (C, one thread per core).
 """
 
 from __future__ import annotations
@@ -38,6 +43,8 @@ from sim.world import CONTROL_HZ, PHYSICS_SUBSTEPS, build_model
 
 WINDOW_S = 1.0
 """Length of a replay window, s."""
+SPEED_ROWS = 3
+"""Rows over which a speed is measured (see the module docstring)."""
 SUBSTEP_S = 1.0 / (CONTROL_HZ * PHYSICS_SUBSTEPS)
 """The simulator's physics step, s: rows are replayed for whole numbers of it."""
 
@@ -87,14 +94,13 @@ class Windows:
         return np.stack([self.row_substeps[t][s] for t, s in zip(self.traj, steps, strict=True)]) * SUBSTEP_S
 
     def measured(self) -> dict[str, np.ndarray]:
-        """(W, H+1) measured reference point x, y (m), heading (rad) and (W, H) row speeds (m/s)."""
+        """(W, H+1) measured reference point x, y (m), heading (rad) and (W, H - SPEED_ROWS + 1) speeds (m/s)."""
         steps = self.start[:, None] + np.arange(self.horizon + 1)
         trajs = [self.trajectories[t] for t in self.traj]
         x = np.stack([tr.x[s] for tr, s in zip(trajs, steps, strict=True)])
         y = np.stack([tr.y[s] for tr, s in zip(trajs, steps, strict=True)])
         h = np.stack([np.radians(tr.heading_deg[s]) for tr, s in zip(trajs, steps, strict=True)])
-        speed = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1)) / self.durations()
-        return {"x": x, "y": y, "heading": h, "speed": speed}
+        return {"x": x, "y": y, "heading": h, "speed": path_speed(x, y, self.durations())}
 
 
 def detect_timing(trajectories: list[Trajectory]) -> str:
@@ -143,7 +149,7 @@ def make_windows(
     if timing not in TIMINGS:
         raise OptionError(f"timing {timing!r} is not one of {', '.join(TIMINGS)} or auto")
     median = max(1, round(float(np.median(np.concatenate([np.diff(t.t) for t in trajectories]))) / SUBSTEP_S))
-    horizon = max(2, round(window_s / (median * SUBSTEP_S)))
+    horizon = max(SPEED_ROWS, round(window_s / (median * SUBSTEP_S)))
     stride = stride or horizon
     traj, start = [], []
     for i, tr in enumerate(trajectories):
@@ -175,7 +181,7 @@ class Replayer:
         self._steer_q = [1 + self.model.jnt_qposadr[self.model.joint(f"{w}_steer").id] for w in ("fl", "fr")]
 
     def replay(self, windows: Windows, calibration: CarCalibration | None = None) -> dict[str, np.ndarray]:
-        """Simulated (W, H+1) reference point x, y (m), heading (rad) and (W, H) row speeds (m/s)."""
+        """Simulated (W, H+1) reference point x, y (m), heading (rad) and (W, H - SPEED_ROWS + 1) speeds (m/s)."""
         calibration = calibration or CarCalibration()
         self.physics.set_calibration(calibration)  # the tyres' friction, on the model the rollout uses
         params = ActuationParams.from_calibration(calibration)
@@ -193,8 +199,7 @@ class Replayer:
         x = np.concatenate([meas0["x"][:, :1], x], axis=1)
         y = np.concatenate([meas0["y"][:, :1], y], axis=1)
         yaw = np.concatenate([meas0["heading"][:, :1], yaw], axis=1)
-        row_speed = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1)) / windows.durations()
-        return {"x": x, "y": y, "heading": yaw, "speed": row_speed}
+        return {"x": x, "y": y, "heading": yaw, "speed": path_speed(x, y, windows.durations())}
 
     def initial_states(self, windows: Windows, calibration: CarCalibration | None = None) -> np.ndarray:
         """(W, nstate) the MuJoCo state (``mjSTATE_FULLPHYSICS``) each window starts from."""
@@ -261,8 +266,18 @@ def initial_motion(tr: Trajectory, k: int, span_s: float) -> tuple[Pose, np.ndar
     return pose, velocity, yaw_rate
 
 
+def path_speed(x: np.ndarray, y: np.ndarray, durations: np.ndarray, rows: int = SPEED_ROWS) -> np.ndarray:
+    """(W, H - rows + 1) speed over ``rows`` consecutive rows: the path length from sample i to i + rows over
+    their duration, for (W, H+1) positions and (W, H) row durations."""
+    step = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1))
+    kernel = np.ones(rows)
+    length = np.apply_along_axis(np.convolve, 1, step, kernel, mode="valid")
+    return length / np.apply_along_axis(np.convolve, 1, durations, kernel, mode="valid")
+
+
 def residuals(sim: dict[str, np.ndarray], meas: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """(W, H) simulated minus measured: dx, dy (m), dheading (deg, wrapped to ±180) and dspeed (m/s)."""
+    """(W, H) simulated minus measured: dx, dy (m), dheading (deg, wrapped to ±180); (W, H - SPEED_ROWS + 1)
+    dspeed (m/s)."""
     dh = np.degrees(np.remainder(sim["heading"][:, 1:] - meas["heading"][:, 1:] + np.pi, 2 * np.pi) - np.pi)
     return {
         "dx": sim["x"][:, 1:] - meas["x"][:, 1:],
