@@ -713,7 +713,8 @@ def calibrate(
     sel = select_effects(fit_obj, sel_obj, candidates, progress, base)
     clock.lap("selection")
     cal = sel.calibration
-    base_names = [n for n in sel.base if cal.has(n)]
+    design = [e.name for e in base.effects if e.name not in sel.base] if base else []  # masses, drives: the car
+    base_names = [n for n in sel.base if cal.has(n)] + design
     if base is None or not base.effects:
         base_names += [e.name for e in cal.effects if e.name not in base_names and _same_kind(cal, e.name)]
     base_names = [n for n in base_names if n == "tyre_friction" or _same_kind(cal, n) or base is not None]
