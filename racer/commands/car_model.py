@@ -75,7 +75,7 @@ def _show_calibration(report: dict) -> None:
             continue
         console.print(f"{title}:" + ("" if entries else " none"), markup=False)
         for e in entries:
-            console.print(f"  {_effect_line(e)}", markup=False, highlight=False)
+            console.print(f"  {_effect_line(e)}", markup=False, highlight=False, soft_wrap=True)
     for item in report.get("identifiability", []):
         if not item["identifiable"]:
             console.print(f"  not identifiable: {item['effect']} (drive: {item['drive']})", markup=False)
@@ -83,7 +83,7 @@ def _show_calibration(report: dict) -> None:
     if structure and structure.get("structured"):
         console.print("  the residual is structured, not noise: an effect racer lacks?", markup=False)
         for where in structure.get("where", [])[:3]:
-            console.print(f"    {where.get('says', where)}", markup=False, highlight=False)
+            console.print(f"    {where.get('says', where)}", markup=False, highlight=False, soft_wrap=True)
 
 
 def _effect_line(e: dict) -> str:
