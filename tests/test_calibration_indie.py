@@ -53,7 +53,9 @@ def test_an_undeclared_effect_is_named_and_measured_within_10_percent(tmp_path, 
         assert entry["value"] == pytest.approx(value, rel=0.10), (name, entry["value"])
         lo, hi = entry["interval_95"]
         assert lo < entry["value"] < hi and hi - lo < 0.5 * value  # an uncertainty, smaller than the value
-        assert not entry.get("ambiguous_with")
+        # DeepRacer's actions (held 1-4 rows, 2 speeds) hold no steady circle: a gain may be flagged as not told
+        # apart from understeer or an offset, and then the report says what the data does fix.
+        assert not entry.get("ambiguous_with") or entry["determined"]
 
 
 def test_a_dead_time_is_within_10_percent_or_flagged_with_its_total_delay(tmp_path):

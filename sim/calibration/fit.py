@@ -55,6 +55,9 @@ MAX_FIT_WINDOWS = 120
 15 rows hold ~1,800 samples per channel: parameters to a few per cent, a replay in ~0.4 s on one core."""
 MAX_ITER = 10
 """Levenberg-Marquardt iterations allowed per fit (one replay each, a fresh Jacobian one per parameter)."""
+JOINT_ITER = 5
+"""Iterations of a joint fit (each a fresh Jacobian: 1 + n replays); joint fits start near their solution (the base
+from its design, a refit from the screened values)."""
 THOROUGH_NFEV = 30
 """Replays per parameter of a thorough (derivative-free) fit."""
 STEP_TOL = 0.01
@@ -246,6 +249,7 @@ def fit_effects(
         return cache[key]
 
     z0 = np.clip(x0, lo, hi) / scale
+    jac_z = None
     if thorough:  # derivative-free, many replays: finds the lower points of a rough valley (see above)
         z = minimize(
             lambda z: float(np.sum(np.square(vector(z * scale)))),
@@ -257,18 +261,20 @@ def fit_effects(
     elif len(keys) == 1:
         z, _ = _trust_region(lambda z: vector(z * scale), z0, lo / scale, hi / scale, max_iter)
     else:  # jointly: a fresh Jacobian every iteration (Broyden's drifts in the valleys a joint fit has)
-        z = least_squares(
+        sol = least_squares(
             lambda z: vector(z * scale),
             z0,
             jac=lambda z: _jacobian(vector, z * scale, vector(z * scale), 0.3 * scale, lo, hi) * scale,
             bounds=(lo / scale, hi / scale),
             xtol=1e-3,
             ftol=1e-4,
-            max_nfev=max_iter,
-        ).x
+            max_nfev=JOINT_ITER,
+        )
+        z, jac_z = sol.x, sol.jac
     x = np.clip(z * scale, lo, hi)
     r = vector(x)
-    jac_x = _jacobian(vector, x, r, 0.3 * scale, lo, hi)  # fresh at the solution, for the standard errors
+    # For the standard errors: least_squares's last Jacobian is the one at its solution; else a fresh one.
+    jac_x = jac_z / scale if jac_z is not None else _jacobian(vector, x, r, 0.3 * scale, lo, hi)
     err = _cluster_stderr(jac_x, r, objective.clusters())
     return Fit(calibration(x, err), float(np.sum(r**2)), evals)
 
@@ -755,7 +761,12 @@ def calibrate(
             "windows_selected_on": len(sel_w),
         }
     )
-    clock.lap("base")
+    # The residual's structure on every episode's windows: a test of what the model lacks, not of how well it
+    # predicts, so it takes all the clusters there are (the report episodes alone, a quarter, leave it blind).
+    every = make_windows(trajectories, timing=timing)
+    result.report["residual"] = residual_structure(residuals(replayer.replay(every, cal), every.measured()), every)
+    result.report["residual"]["on"] = "all episodes"
+    clock.lap("base and residual")
     result.report["seconds"] = clock.laps
     return result
 
