@@ -4,8 +4,9 @@ That car (a dynamic bicycle with saturating tyres, its own servo and motor, none
 racer's MuJoCo car in kind, so the calibration must fit its base (grip, geometry, speed scale) apart from the
 undeclared effect, report the effect's value in its physical sense within 10 % of what was injected, and, where
 it cannot tell a dead time from a lag, say so rather than give a confident split. 45 episodes of 100 rows of
-DeepRacer-like actions, as one training log. What this car still defeats (offset, saturation, understeer, a
-speed dead time, and the effects outside racer's library) is listed in docs/calibration.md.
+DeepRacer-like actions, as one training log. An effect outside racer's library must leave a structured residual
+and no confident value. What this car still defeats (offset, saturation, understeer, a speed dead time) is
+listed in docs/calibration.md.
 """
 
 from __future__ import annotations
@@ -70,3 +71,18 @@ def test_a_dead_time_is_within_10_percent_or_flagged_with_its_total_delay(tmp_pa
         total = delay["determined"]["steering_total_delay_s"]
         assert 0.2 <= total <= 0.3  # the dead time plus the lag it was split into (and this car's own ~30 ms)
     assert set(found) <= {"steering_delay", "steering_lag"}
+
+
+@pytest.mark.parametrize(
+    "injected",
+    [{"steering_backlash": 3.0}, {"steering_rate_limit": 120.0}],
+    ids=["backlash", "rate_limit"],
+)
+def test_an_effect_outside_the_library_leaves_a_structured_residual_and_no_confident_value(tmp_path, injected):
+    """A ±3° steering play or a servo that slews at most 120°/s: racer's library has neither. The report must say
+    that what is left is structure, say where, and give whatever nearest effect it fitted as provisional only."""
+    report = _calibrate(tmp_path, injected)
+    residual = report["residual"]
+    assert residual["structured"] is True
+    assert residual["where"] and all(w["says"] for w in residual["where"])
+    assert all(e.get("provisional") for e in report["effects"]), report["effects"]

@@ -97,6 +97,8 @@ def _effect_line(e: dict) -> str:
     if "value_stderr" in e:
         lo, hi = e["interval_95"]
         line += f" ± {e['value_stderr']:.2g} {e['unit']} (95 %: {lo:.4g} to {hi:.4g})"
+    if e.get("provisional"):
+        line += " [provisional: the residual is structured]"
     if e.get("ambiguous_with"):
         line += f"; not told apart from {', '.join(e['ambiguous_with'])}: {e['determined']}"
     return line
