@@ -242,22 +242,31 @@ def _cross(split: str, first: list[_Part], second: list[_Part]) -> list[_Bin]:
     return [_Bin(split, (a, b), a.mask & b.mask, b.direction) for a in first for b in second]
 
 
-def _turn_parts(f: dict[str, np.ndarray]) -> list[_Part]:
-    s = f["steer"]
-    left, right = s > TURN_DEG, s < -TURN_DEG
+def _signed_parts(
+    split: str, value: np.ndarray, threshold: float, what: str, names: tuple[str, str, str, str]
+) -> list[_Part]:
+    """Left (value > threshold), right (< -threshold), neither, and either way with heading and cross-track errors
+    signed toward the side: ``names`` are the labels of the four (left, right, neither, either)."""
+    left, right = value > threshold, value < -threshold
     return [
-        _Part("turn", "left", "turning left", f"mean steering command > {TURN_DEG:g}°", left),
-        _Part("turn", "right", "turning right", f"mean steering command < -{TURN_DEG:g}°", right),
-        _Part("turn", "straight", "going straight", f"|mean steering command| <= {TURN_DEG:g}°", ~(left | right)),
+        _Part(split, "left", names[0], f"{what} > {threshold:g}°", left),
+        _Part(split, "right", names[1], f"{what} < -{threshold:g}°", right),
+        _Part(split, names[2].split()[-1], names[2], f"|{what}| <= {threshold:g}°", ~(left | right)),
         _Part(
-            "turn",
+            split,
             "either",
-            "turning (either way)",
-            f"|mean steering command| > {TURN_DEG:g}°; heading and cross-track errors signed toward the turn",
+            names[3],
+            f"|{what}| > {threshold:g}°; heading and cross-track errors signed toward the "
+            + ("turn" if split == "turn" else "swing"),
             left | right,
-            np.sign(s),
+            np.sign(value),
         ),
     ]
+
+
+def _turn_parts(f: dict[str, np.ndarray]) -> list[_Part]:
+    names = ("turning left", "turning right", "going straight", "turning (either way)")
+    return _signed_parts("turn", f["steer"], TURN_DEG, "mean steering command", names)
 
 
 def _speed_parts(f: dict[str, np.ndarray]) -> list[_Part]:
@@ -289,22 +298,9 @@ def _accel_parts(f: dict[str, np.ndarray]) -> list[_Part]:
 
 
 def _swing_parts(f: dict[str, np.ndarray]) -> list[_Part]:
-    d = f["swing"]
-    left, right = d > SWING_DEG, d < -SWING_DEG
+    names = ("steering swings left", "steering swings right", "steering held", "steering swings (either way)")
     what = "mean steering command minus the command before the window"
-    return [
-        _Part("steering change", "left", "steering swings left", f"{what} > {SWING_DEG:g}°", left),
-        _Part("steering change", "right", "steering swings right", f"{what} < -{SWING_DEG:g}°", right),
-        _Part("steering change", "held", "steering held", f"|{what}| <= {SWING_DEG:g}°", ~(left | right)),
-        _Part(
-            "steering change",
-            "either",
-            "steering swings (either way)",
-            f"|{what}| > {SWING_DEG:g}°; heading and cross-track errors signed toward the swing",
-            left | right,
-            np.sign(d),
-        ),
-    ]
+    return _signed_parts("steering change", f["swing"], SWING_DEG, what, names)
 
 
 # ------------------------------------------------------------------------------------------------ statistics
