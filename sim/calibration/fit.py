@@ -445,7 +445,8 @@ def select_effects(
     base_names = [e.name for e in base.effects if EFFECTS[e.name].candidate]
     base_names += [n for n in BASE_EFFECTS if n in pool and n not in base_names]
     guesses = [CarEffect(name=n, params={"gain": g}) for n, g in gain_guess(fit_obj.windows).items()]
-    start = base.model_copy(update={"effects": [*base.effects, *[e for e in guesses if e.name in base_names]]})
+    guessed = base.model_copy(update={"effects": [*base.effects, *[e for e in guesses if e.name in base_names]]})
+    start = min((base, guessed), key=fit_obj.cost)  # the guess only where it starts nearer (a lag skews it)
     fit = fit_effects(fit_obj, base_names, start, max_iter=BASE_ITER)
     current, current_cost = _prune(fit.calibration, sel_obj, [n for n in base_names if not base.has(n)], progress)
     base_names = [n for n in base_names if current.has(n)]
@@ -512,7 +513,9 @@ def gain_guess(windows: Windows) -> dict[str, float]:
     """Where the base car's steering and speed gains start: the logged car's command-response gain (the sum of
     its response weights, ``sim.calibration.response``) over racer's car's, driven open loop by the same
     commands, on the episodes of ``windows``. A trust-region fit started at racer's own gains can stall on the
-    way to a car that steers 40 % less (seen: 0.81 for 0.6 in 12 iterations); from here it starts near."""
+    way to a car that steers 40 % less (seen: 0.81 for 0.6 in 12 iterations); from here it starts near. A slow
+    car's response outlasts the 14 rows the weights span, so the guess is low for one (0.46 for a car with a
+    0.5 s steering lag): :func:`select_effects` starts from it only where it costs less than racer's gains."""
     trajectories = [windows.trajectories[t] for t in np.unique(windows.traj)]
     measured, model = command_response(trajectories), command_response(simulate_open_loop(trajectories))
     out = {}
