@@ -6,23 +6,30 @@ The procedure (:func:`calibrate`):
    ``i % 4 == 2`` choose the effects, ``i % 4 == 3`` report the error. The split interleaves episodes, so
    each part spans the whole log, and no episode is in two parts.
 2. Replay 1 s windows (``sim.calibration.replay``) and measure the residual of the uncalibrated car.
-3. Forward selection: each round, add each candidate effect in turn to those already chosen, fit its
-   parameters on the fit windows (``scipy.optimize``, derivative-free: see :func:`fit_effects`), and score
-   the result on the selection windows. The best candidate is kept if it cuts the held-out cost by more than
-   :data:`PENALTY_PER_PARAM` of what is left per parameter it adds and its value is significant (more than
-   :data:`MIN_Z` standard errors from the value that does nothing); otherwise selection stops. After each
-   addition, all chosen effects are refitted together, and one that the joint refit leaves within
-   :data:`MIN_Z` joint standard errors of doing nothing is dropped and not tried again.
-4. Backward check: a chosen effect that no longer pays its penalty once the others were refitted is dropped.
-5. Report the chosen effects with standard errors (cluster-robust by episode: windows of one episode are not
-   independent) and the error before and after on the report windows, broken down by condition.
+3. The base car: :data:`BASE_EFFECTS` (grip, steering geometry, speed scale; and a given car's candidate
+   effects) fitted jointly, each kept only if it pays :data:`PENALTY_PER_PARAM` on the selection windows.
+4. Forward selection on top of the base: each round, :func:`score_test` ranks the remaining candidates (one
+   replay each), the best :data:`SCREEN_TOP` are fitted (:func:`fit_effects`) and scored on the selection
+   windows. The best is kept if it cuts the held-out cost by more than :data:`PENALTY_PER_PARAM` of what is left
+   per parameter it adds and its value is significant (more than :data:`MIN_Z` standard errors from the value
+   that does nothing); otherwise selection stops. After each addition the base and all chosen effects are
+   refitted together, and one that the joint refit leaves within :data:`MIN_Z` joint standard errors of doing
+   nothing is dropped and not tried again.
+5. Backward check: a chosen effect that no longer pays its penalty once the others were refitted is dropped;
+   each chosen effect's partner (:data:`PARTNERS`) is fitted in its place to see whether the data can tell them
+   apart.
+6. Report the base and the effects apart (``sim.calibration.values``: values in their physical sense, standard
+   errors cluster-robust by episode, 95 % intervals, ambiguities), the error before and after on the report
+   windows, broken down by condition, what the logs can identify (``sim.calibration.plan``) and whether the
+   residual on every episode is noise or structure (``sim.calibration.residual``).
 
 The cost: each channel's mean squared residual (position, heading, speed) divided by the uncalibrated car's on
 the fit windows, summed, so the uncalibrated car scores 3 on the fit windows and each channel weighs the same.
 
-A base car (``calibrate(base=...)``, e.g. a design read from DeepRacer's simapp, ``sim/cars/design/``) is the
-start instead of the car as modelled: its model properties (masses, inertias, drives) stay; its other effects
-are refitted first and with every candidate, then effects are chosen on top as above. "Before" in the report
+A base car (``calibrate(base=...)``, e.g. a design read from DeepRacer's simapp, ``sim/cars/design/``, or a car
+fitted on a clean log) is the start instead of the car as modelled: its model properties (masses, inertias,
+drives) stay; its other effects are refitted first, with :data:`BASE_EFFECTS`, then effects are chosen on top
+as above. "Before" in the report
 is still the car as modelled, so that every score compares with the default car.
 """
 
