@@ -139,7 +139,7 @@ def test_racer_bench_only_registers_the_benchmarks():
 
     tree = ast.parse(inspect.getsource(cli_bench))
     commands = [f for f in tree.body if isinstance(f, ast.FunctionDef) and f.decorator_list]
-    assert len(commands) == 12
+    assert len(commands) == 13
     for f in commands:
         calls = [n.func for n in ast.walk(f) if isinstance(n, ast.Call)]
         shown = [c for c in calls if isinstance(c, ast.Name) and c.id == "_show"]

@@ -46,7 +46,15 @@ from scipy.optimize import least_squares, minimize
 from common.car_calibration import CANDIDATE_EFFECTS, EFFECTS, CarCalibration, CarEffect
 from sim.calibration.logs import LogError, Trajectory
 from sim.calibration.plan import identifiability, pairs_confounded
-from sim.calibration.replay import SPEED_ROWS, Replayer, Windows, detect_timing, make_windows, residuals
+from sim.calibration.replay import (
+    SPEED_ROWS,
+    Replayer,
+    Windows,
+    detect_timing,
+    make_windows,
+    path_speed,
+    residuals,
+)
 from sim.calibration.residual import residual_structure
 from sim.calibration.response import command_response, simulate_open_loop
 from sim.calibration.values import describe
@@ -132,14 +140,22 @@ class Objective:
     windows: Windows
     scales: dict[str, float]
     """Mean squared residual of the uncalibrated car per channel (pos, heading, speed) on the fit windows."""
+    speed_rows: int = SPEED_ROWS
+    """Rows a speed is measured over: ``sim.calibration.replay.SPEED_ROWS``, or 1 for the car presets' refit, which
+    reproduces the fit they were made with (speeds over one row)."""
     meas: dict[str, np.ndarray] = field(init=False)
 
     def __post_init__(self) -> None:
-        self.meas = self.windows.measured()
+        self.meas = self._speeds(self.windows.measured())
+
+    def _speeds(self, d: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        if self.speed_rows == SPEED_ROWS:
+            return d
+        return {**d, "speed": path_speed(d["x"], d["y"], self.windows.durations(), self.speed_rows)}
 
     def residual(self, cal: CarCalibration) -> dict[str, np.ndarray]:
         """Raw residuals (W, H) of the calibration on these windows."""
-        return residuals(self.replayer.replay(self.windows, cal), self.meas)
+        return residuals(self._speeds(self.replayer.replay(self.windows, cal)), self.meas)
 
     def vector(self, res: dict[str, np.ndarray]) -> np.ndarray:
         """Normalized residual vector: its squared norm is the cost."""
@@ -162,7 +178,7 @@ class Objective:
         """The episode of each entry of :meth:`vector`."""
         keys = self.windows.episode_keys()
         per_window = np.repeat(keys, self.windows.horizon)
-        per_speed = np.repeat(keys, self.windows.horizon - SPEED_ROWS + 1)
+        per_speed = np.repeat(keys, self.windows.horizon - self.speed_rows + 1)
         return np.concatenate([per_window, per_window, per_window, per_speed])
 
 
@@ -867,7 +883,10 @@ def refit(
         timing = detect_timing(trajectories)
     replayer = Replayer()
     fit_w, _ = fit_windows(split_episodes(trajectories), max_windows, timing)
-    scales = channel_scales(residuals(replayer.replay(fit_w), fit_w.measured()))
+    # The presets were fitted with speeds over one row, before calibration scored them over three: their refit
+    # reproduces that fit (their scores use the current rows like any car's).
+    uncalibrated = Objective(replayer, fit_w, {}, speed_rows=1)
+    objective = Objective(replayer, fit_w, channel_scales(uncalibrated.residual(CarCalibration())), speed_rows=1)
     fitted = [e.name for e in car.effects if e.stderr]
     start = base.model_copy(update={"about": car.about})
-    return fit_effects(Objective(replayer, fit_w, scales), fitted, start, thorough=True).calibration
+    return fit_effects(objective, fitted, start, thorough=True).calibration
