@@ -24,7 +24,7 @@ from common.errors import OptionError
 from racer.bench import Report
 from racer.bench.env import pin_to_one_core
 from sim.calibration import read_logs
-from sim.calibration.fit import calibrate
+from sim.calibration.fit import MAX_FIT_WINDOWS, calibrate
 from sim.physics import CarPhysics, Pose
 from sim.texture import TextureFrame
 from sim.world import CONTROL_HZ, build_model
@@ -70,7 +70,7 @@ def _actions(rng: np.random.Generator, rows: int) -> tuple[list[float], list[flo
 def command(logs: list[Path], *, repeats: int, threads: int, max_windows: int | None) -> Report:
     """Calibrate each log ``repeats`` times; the median seconds per log and its parts."""
     if repeats < 1 or threads < 1:
-        raise OptionError("--repeats and --threads must be at least 1")
+        raise OptionError(f"--repeats {repeats}, --threads {threads}: each must be at least 1")
     core = pin_to_one_core() if threads == 1 else None
     with tempfile.TemporaryDirectory() as tmp:
         paths = logs or [synthetic_log(Path(tmp) / "synthetic.csv")]
@@ -90,8 +90,9 @@ def _time_log(path: Path, repeats: int, threads: int, max_windows: int | None) -
     times, reports = [], []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        kwargs = {"max_windows": max_windows} if max_windows else {}
-        result = calibrate(trajectories, progress=lambda _: None, threads=threads, **kwargs)
+        result = calibrate(
+            trajectories, max_windows=max_windows or MAX_FIT_WINDOWS, progress=lambda _: None, threads=threads
+        )
         times.append(time.perf_counter() - t0)
         reports.append(result.report)
     median = statistics.median(times)

@@ -48,6 +48,11 @@ def calibrate(
     if plan:
         from sim.calibration.plan import plan_text
 
+        if logs or apply is not None or out is not None:
+            from common.errors import OptionError
+
+            raise OptionError("racer calibrate --plan prints what to drive: it takes no logs, --apply or --out")
+
         print(plan_text())  # plain: the plan's lines are already wrapped, and a pipe must not re-wrap them
         return
     if not logs:

@@ -430,10 +430,10 @@ def _with_effect(cal: CarCalibration, name: str, params: dict[str, float]) -> Ca
     return cal.model_copy(update={"effects": [*kept, CarEffect(name=name, params=params)]})
 
 
-def score_test(objective: Objective, cal: CarCalibration, candidates: list[str]) -> dict[str, float]:
-    """The cost each candidate would remove from ``cal``'s, by one replay per candidate: its first parameter
-    moved from doing nothing by its typical size (a saturation: set to its start), the larger of the cost that
-    step removed and the Gauss-Newton step's prediction along it. A ranking of candidates, not a fit."""
+def score_test(objective: Objective, cal: CarCalibration, candidates: list[str]) -> tuple[float, dict[str, float]]:
+    """``cal``'s cost, and the cost each candidate would remove from it, by one replay per candidate: its first
+    parameter moved from doing nothing by its typical size (a saturation: set to its start), the larger of the
+    cost that step removed and the Gauss-Newton step's prediction along it. A ranking of candidates, not a fit."""
     r0 = objective.vector(objective.residual(cal))
     c0 = float(np.sum(r0**2))
     out = {}
@@ -448,7 +448,7 @@ def score_test(objective: Objective, cal: CarCalibration, candidates: list[str])
         j = r1 - r0
         predicted = float(np.dot(j, r0) ** 2 / max(np.dot(j, j), 1e-12))
         out[name] = max(predicted if np.dot(j, r0) < 0 else 0.0, c0 - float(np.sum(r1**2)))
-    return out
+    return c0, out
 
 
 def select_effects(
@@ -478,8 +478,7 @@ def select_effects(
     chosen: list[str] = []
     rounds: list[Round] = []
     while remaining:
-        gains = score_test(fit_obj, current, remaining)
-        fit_cost = fit_obj.cost(current)
+        fit_cost, gains = score_test(fit_obj, current, remaining)
         ranked = sorted(remaining, key=lambda n: -gains[n])
         top = [n for n in ranked[:SCREEN_TOP] if gains[n] > max(MIN_GAIN * fit_cost, RUNNER_UP * gains[ranked[0]])]
         if not top:  # no candidate promises what it would have to pay: nothing left to fit
@@ -528,7 +527,7 @@ def select_effects(
         progress(f"chose {best['name']}: held-out cost {current_cost:.3f}")
     current, current_cost = _prune(current, sel_obj, chosen, progress)  # what no longer pays after the refits
     chosen = [n for n in chosen if current.has(n)]
-    alternatives = _alternatives(fit_obj, sel_obj, current, current_cost, chosen, base_names)
+    alternatives = _alternatives(fit_obj, sel_obj, current, current_cost, chosen)
     return Selection(current, current_cost, rounds, base_names, alternatives)
 
 
@@ -573,7 +572,6 @@ def _alternatives(
     cal: CarCalibration,
     cost: float,
     chosen: list[str],
-    base_names: list[str],
 ) -> dict[str, dict]:
     """For each chosen effect with a partner (:data:`PARTNERS`), the partner fitted in its place (or, a partner
     already chosen, the pair's held-out cost without either): kept where its held-out cost is within
@@ -584,8 +582,7 @@ def _alternatives(
         if partner is None or partner in chosen:
             continue
         without = cal.model_copy(update={"effects": [e for e in cal.effects if e.name != name]})
-        free = [partner] if partner not in base_names else [partner]
-        alt = fit_effects(fit_obj, [*free], without)
+        alt = fit_effects(fit_obj, [partner], without)
         alt_cost = sel_obj.cost(alt.calibration)
         if alt_cost <= cost * (1 + AMBIGUOUS_MARGIN):
             out[name] = {"with": partner, "select_cost": alt_cost, "calibration": alt.calibration}
@@ -765,15 +762,15 @@ def calibrate(
     sel = select_effects(fit_obj, sel_obj, candidates, progress, base)
     clock.lap("selection")
     cal = sel.calibration
-    design = [e.name for e in base.effects if e.name not in sel.base] if base else []  # masses, drives: the car
-    base_names = [n for n in sel.base if cal.has(n)] + design
-    if base is None or not base.effects:
-        base_names += [e.name for e in cal.effects if e.name not in base_names and _same_kind(cal, e.name)]
-    base_names = [n for n in base_names if n == "tyre_friction" or _same_kind(cal, n) or base is not None]
+    if base is not None and base.effects:  # a given car: all it is, refitted, plus its masses and drives
+        base_names = [n for n in sel.base if cal.has(n)] + [e.name for e in base.effects if e.name not in sel.base]
+    else:  # racer's car: what lies within what a car of DeepRacer's kind has
+        ordered = dict.fromkeys([*sel.base, *(e.name for e in cal.effects)])
+        base_names = [n for n in ordered if cal.has(n) and _same_kind(cal, n)]
     effect_names = [e.name for e in cal.effects if e.name not in base_names]
     result = score(cal, parts["report"], replayer, timing)
     clock.lap("report")
-    mean_v2 = float(np.mean(np.square(sel_w.measured()["speed"])))
+    mean_v2 = float(np.mean(np.square(sel_obj.meas["speed"])))
     ambiguous = _ambiguous(sel, pairs_confounded(trajectories), effect_names)
     base_cal = cal.model_copy(update={"effects": [e for e in cal.effects if e.name in base_names]})
     base_res = residuals(replayer.replay(result.windows, base_cal), result.replays["measured"])
