@@ -13,7 +13,15 @@ from typing import Any, NamedTuple, TypeVar
 import redis
 
 from common.keys import Keys
-from common.protocol import CarPose, EvaluationSummary, Heartbeat, PolicyVersion, ProtocolError
+from common.protocol import (
+    CarPose,
+    EvaluationSummary,
+    Heartbeat,
+    PolicyVersion,
+    ProtocolError,
+    TrainerBeat,
+    TrainerEnd,
+)
 from common.redis_util import connect_checked
 
 M = TypeVar("M", CarPose, Heartbeat)
@@ -23,6 +31,13 @@ EVALUATIONS_KEPT = 1000
 """Evaluation summaries kept in Redis (a run lasts hours; the store keeps every evaluation)."""
 TRAINER_STATUS_TTL_S = 30
 """The trainer's status key expires this long after its last refresh (it refreshes every second)."""
+TRAINER_BEAT_EVERY_S = 2.0
+"""How often the trainer's heartbeat thread refreshes its key."""
+TRAINER_BEAT_TTL_S = 15
+"""The trainer's heartbeat expires this long after its last refresh: a trainer silent for 15 s is gone (its thread
+beats whatever the main loop does, so a slow PPO update does not count)."""
+TRAINER_END_TTL_S = 7 * 24 * 3600
+"""How long a stopped trainer's end record stays (a shared Redis outlives runs; ``racer status`` reads it)."""
 TRAINING_MARK_TTL_S = 600
 """The "PPO update running" mark expires on its own if the trainer dies mid-update."""
 WATCH_TTL_S = 3
@@ -38,8 +53,9 @@ class StreamCounts(NamedTuple):
 
     length: int
     """Entries in the stream now."""
-    added: int | None
-    """Entries ever added (None on a Redis older than 7, which does not count them)."""
+    added: int
+    """Entries ever added: XINFO STREAM's ``entries-added`` on Redis 7+, racer's own counter of pushed segments on
+    6.2 (which does not count them)."""
 
 
 class Bus:
@@ -79,6 +95,7 @@ class Bus:
         pipe = self.redis.pipeline(transaction=False)
         for fields in segments:
             pipe.xadd(self.keys.segments, fields, maxlen=maxlen, approximate=True)
+        pipe.incrby(self.keys.segments_added, len(segments))  # Redis 6.2 does not count a stream's entries added
         pipe.set(self.keys.heartbeat(heartbeat.worker_id), heartbeat.to_json(), ex=heartbeat_ttl_s)
         pipe.execute()
 
@@ -104,8 +121,10 @@ class Bus:
             if "no such key" in str(exc).lower():
                 return None
             raise
-        added = info.get("entries-added")  # Redis 7+
-        return StreamCounts(length=int(info["length"]), added=None if added is None else int(added))
+        added = info.get("entries-added")  # Redis 7+; on 6.2, racer's own count of what the pushes added
+        if added is None:
+            added = self.redis.get(self.keys.segments_added) or 0
+        return StreamCounts(length=int(info["length"]), added=int(added))
 
     # --- workers: slots and heartbeats -----------------------------------------------------------
     def take_worker_slot(self) -> int:
@@ -129,6 +148,36 @@ class Bus:
         """The trainer's last status, None if it is not running (or wrote none for TRAINER_STATUS_TTL_S)."""
         raw = self.redis.get(self.keys.trainer_status)
         return None if raw is None else _json_object(raw)
+
+    def beat_trainer(self, beat: TrainerBeat) -> None:
+        """Refresh the trainer process's heartbeat (expires ``TRAINER_BEAT_TTL_S`` after the last)."""
+        self.redis.set(self.keys.trainer_beat, beat.to_json(), ex=TRAINER_BEAT_TTL_S)
+
+    def trainer_beat(self) -> TrainerBeat | None:
+        """The trainer's heartbeat, None if it is gone (or the key holds something malformed: never trusted)."""
+        raw = self.redis.get(self.keys.trainer_beat)
+        try:
+            return None if raw is None else TrainerBeat.from_json(raw)
+        except ProtocolError:
+            return None
+
+    def end_trainer(self, end: TrainerEnd) -> None:
+        """Record why the trainer stopped, and drop its heartbeat (it is not running any more)."""
+        pipe = self.redis.pipeline()
+        pipe.set(self.keys.trainer_end, end.to_json(), ex=TRAINER_END_TTL_S).delete(self.keys.trainer_beat)
+        pipe.execute()
+
+    def clear_trainer_end(self) -> None:
+        """A trainer (re)started: a predecessor's end record no longer describes the run."""
+        self.redis.delete(self.keys.trainer_end)
+
+    def trainer_end(self) -> TrainerEnd | None:
+        """Why the run's last trainer stopped, None if none has (or the key holds something malformed)."""
+        raw = self.redis.get(self.keys.trainer_end)
+        try:
+            return None if raw is None else TrainerEnd.from_json(raw)
+        except ProtocolError:
+            return None
 
     def mark_training(self, version: int) -> None:
         """Say a PPO update from ``version`` is running (workers with max_policy_lag 0 wait for its result)."""
@@ -235,9 +284,16 @@ class Bus:
             "last_evaluation": evaluations[-1].model_dump() if evaluations else None,
             "segments_queued": self.segments_queued(),
             "training": self.training(),
+            "trainer_beat": _dump(self.trainer_beat()),
+            "trainer_end": _dump(self.trainer_end()),
+            "redis_version": self.server_version(),
         }
 
     # --- the server --------------------------------------------------------------------------------
+    def server_version(self) -> str:
+        """The Redis server's version (INFO server), e.g. ``7.0.15``: racer runs on 6.2 and 7.x."""
+        return str(self.redis.info("server")["redis_version"])
+
     def memory(self) -> dict[str, int]:
         """Redis's used and peak memory (bytes) and its key count, for the benches."""
         info = self.redis.info("memory")
@@ -259,3 +315,7 @@ def _json_object(raw: bytes | str) -> dict[str, Any] | None:
     except ValueError:
         return None
     return value if isinstance(value, dict) else None
+
+
+def _dump(message: TrainerBeat | TrainerEnd | None) -> dict[str, Any] | None:
+    return None if message is None else message.model_dump()

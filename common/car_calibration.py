@@ -24,24 +24,26 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 from functools import cache
 from importlib.resources.abc import Traversable
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from common.errors import UserError
+from common.errors import UserError, error_location
 
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One parameter of an effect: its identity value, physical bounds, a start for fitting and its meaning."""
+    """One parameter of an effect: its identity value and physical bounds (by position), then by name a start for
+    fitting, a scale and its meaning."""
 
     identity: float
     """The value at which the effect does nothing."""
     low: float
     high: float
+    _: KW_ONLY
     start: float
     """Where a fit starts from (near identity, but where the error still depends on it)."""
     scale: float
@@ -67,43 +69,59 @@ class EffectSpec:
 EFFECTS: dict[str, EffectSpec] = {
     "steering_offset": EffectSpec(
         "a constant added to the commanded steering angle (a mis-centred servo)",
-        {"offset_deg": ParamSpec(0.0, -10.0, 10.0, 0.5, 1.0, "added angle, degrees, + = left")},
+        {"offset_deg": ParamSpec(0.0, -10.0, 10.0, start=0.5, scale=1.0, doc="added angle, degrees, + = left")},
     ),
     "steering_gain": EffectSpec(
         "the wheels turn by gain × the commanded angle",
-        {"gain": ParamSpec(1.0, 0.05, 2.0, 0.9, 0.1, "effective / commanded angle")},
+        {"gain": ParamSpec(1.0, 0.05, 2.0, start=0.9, scale=0.1, doc="effective / commanded angle")},
     ),
     "steering_saturation": EffectSpec(
         "the wheels turn no further than a limit, whatever the command",
-        {"max_deg": ParamSpec(30.0, 1.0, 30.0, 20.0, 2.0, "largest effective angle, degrees")},
+        {"max_deg": ParamSpec(30.0, 1.0, 30.0, start=20.0, scale=2.0, doc="largest effective angle, degrees")},
     ),
     "steering_delay": EffectSpec(
         "dead time between a steering command and the wheels starting to turn",
-        {"delay_s": ParamSpec(0.0, 0.0, 0.5, 0.05, 0.03, "dead time, s")},
+        {"delay_s": ParamSpec(0.0, 0.0, 0.5, start=0.05, scale=0.03, doc="dead time, s")},
     ),
     "steering_lag": EffectSpec(
         "the wheels follow the steering command as a first-order lag",
-        {"tau_s": ParamSpec(0.0, 0.0, 2.0, 0.15, 0.1, "time constant, s")},
+        {"tau_s": ParamSpec(0.0, 0.0, 2.0, start=0.15, scale=0.1, doc="time constant, s")},
+    ),
+    "steering_rate": EffectSpec(
+        "the wheels turn no faster than a servo's slew rate, whatever the command asks",
+        {
+            "s_per_60deg": ParamSpec(
+                0.0, 0.0, 2.0, start=0.3, scale=0.3, doc="seconds to turn the wheels 60° (a servo's datasheet)"
+            )
+        },
     ),
     "speed_gain": EffectSpec(
         "the wheels run at gain × the commanded speed",
-        {"gain": ParamSpec(1.0, 0.2, 2.0, 0.9, 0.1, "effective / commanded speed")},
+        {"gain": ParamSpec(1.0, 0.2, 2.0, start=0.9, scale=0.1, doc="effective / commanded speed")},
     ),
     "speed_delay": EffectSpec(
         "dead time between a speed command and the wheels changing speed",
-        {"delay_s": ParamSpec(0.0, 0.0, 0.5, 0.05, 0.03, "dead time, s")},
+        {"delay_s": ParamSpec(0.0, 0.0, 0.5, start=0.05, scale=0.03, doc="dead time, s")},
     ),
     "speed_lag": EffectSpec(
         "the wheel speed target follows the command as a first-order lag",
-        {"tau_s": ParamSpec(0.0, 0.0, 2.0, 0.15, 0.1, "time constant, s")},
+        {"tau_s": ParamSpec(0.0, 0.0, 2.0, start=0.15, scale=0.1, doc="time constant, s")},
+    ),
+    "speed_rate": EffectSpec(
+        "the wheel speed target changes no faster than a rate: the largest acceleration the drive gives",
+        {
+            "s_per_mps": ParamSpec(
+                0.0, 0.0, 2.0, start=0.3, scale=0.3, doc="seconds to change speed by 1 m/s (1 / acceleration)"
+            )
+        },
     ),
     "understeer": EffectSpec(
         "curvature lost with speed: the effective angle is divided by 1 + k·v² (v the wheel speed target)",
-        {"k_s2pm2": ParamSpec(0.0, 0.0, 10.0, 0.1, 0.1, "k, s²/m²")},
+        {"k_s2pm2": ParamSpec(0.0, 0.0, 10.0, start=0.1, scale=0.1, doc="k, s²/m²")},
     ),
     "tyre_friction": EffectSpec(
         "tyre-ground friction coefficient: how much lateral grip the car has before it slides",
-        {"mu": ParamSpec(1.0, 0.2, 3.0, 1.3, 0.2, "friction coefficient (the model's is 1.0)")},
+        {"mu": ParamSpec(1.0, 0.2, 3.0, start=1.3, scale=0.2, doc="friction coefficient (the model's is 1.0)")},
         acts_on="model",
     ),
     # The identity values below are the compiled sim/assets/car.xml's (rounded); an absent effect leaves the
@@ -111,12 +129,22 @@ EFFECTS: dict[str, EffectSpec] = {
     "chassis": EffectSpec(
         "the car body (chassis, camera, shell: everything rigid): its mass, centre of mass and inertia",
         {
-            "mass_kg": ParamSpec(1.4, 0.2, 20.0, 1.4, 0.2, "mass, kg"),
-            "com_x_m": ParamSpec(-0.0061, -0.1, 0.1, -0.0061, 0.005, "centre of mass ahead of base_link, m"),
-            "com_z_m": ParamSpec(0.0225, -0.03, 0.1, 0.0225, 0.005, "centre of mass above the axles, m"),
-            "ixx_kgm2": ParamSpec(0.0017, 1e-5, 1.0, 0.0017, 0.0005, "roll inertia about the centre of mass"),
-            "iyy_kgm2": ParamSpec(0.0057, 1e-5, 1.0, 0.0057, 0.0005, "pitch inertia about the centre of mass"),
-            "izz_kgm2": ParamSpec(0.0068, 1e-5, 1.0, 0.0068, 0.0005, "yaw inertia about the centre of mass"),
+            "mass_kg": ParamSpec(1.4, 0.2, 20.0, start=1.4, scale=0.2, doc="mass, kg"),
+            "com_x_m": ParamSpec(
+                -0.0061, -0.1, 0.1, start=-0.0061, scale=0.005, doc="centre of mass ahead of base_link, m"
+            ),
+            "com_z_m": ParamSpec(
+                0.0225, -0.03, 0.1, start=0.0225, scale=0.005, doc="centre of mass above the axles, m"
+            ),
+            "ixx_kgm2": ParamSpec(
+                0.0017, 1e-5, 1.0, start=0.0017, scale=0.0005, doc="roll inertia about the centre of mass"
+            ),
+            "iyy_kgm2": ParamSpec(
+                0.0057, 1e-5, 1.0, start=0.0057, scale=0.0005, doc="pitch inertia about the centre of mass"
+            ),
+            "izz_kgm2": ParamSpec(
+                0.0068, 1e-5, 1.0, start=0.0068, scale=0.0005, doc="yaw inertia about the centre of mass"
+            ),
         },
         acts_on="model",
         candidate=False,
@@ -124,10 +152,12 @@ EFFECTS: dict[str, EffectSpec] = {
     "wheels": EffectSpec(
         "mass and inertia of each wheel, and the mass of each steering hinge",
         {
-            "mass_kg": ParamSpec(0.06, 0.005, 2.0, 0.06, 0.01, "mass of one wheel, kg"),
-            "spin_inertia_kgm2": ParamSpec(2.94e-5, 1e-6, 0.01, 2.94e-5, 1e-5, "about the axle, kg·m²"),
-            "cross_inertia_kgm2": ParamSpec(2.94e-5, 1e-6, 0.01, 2.94e-5, 1e-5, "about a diameter, kg·m²"),
-            "hinge_mass_kg": ParamSpec(0.02, 0.001, 1.0, 0.02, 0.01, "mass of one steering hinge, kg"),
+            "mass_kg": ParamSpec(0.06, 0.005, 2.0, start=0.06, scale=0.01, doc="mass of one wheel, kg"),
+            "spin_inertia_kgm2": ParamSpec(2.94e-5, 1e-6, 0.01, start=2.94e-5, scale=1e-5, doc="about the axle, kg·m²"),
+            "cross_inertia_kgm2": ParamSpec(
+                2.94e-5, 1e-6, 0.01, start=2.94e-5, scale=1e-5, doc="about a diameter, kg·m²"
+            ),
+            "hinge_mass_kg": ParamSpec(0.02, 0.001, 1.0, start=0.02, scale=0.01, doc="mass of one steering hinge, kg"),
         },
         acts_on="model",
         candidate=False,
@@ -135,16 +165,19 @@ EFFECTS: dict[str, EffectSpec] = {
     "drive": EffectSpec(
         "the wheel drives: torque = gain × (target − actual wheel speed), within ± max torque",
         {
-            "rear_gain_nms": ParamSpec(0.02, 1e-3, 10.0, 0.02, 0.01, "rear wheels, N·m per rad/s"),
-            "front_gain_nms": ParamSpec(0.02, 1e-3, 10.0, 0.02, 0.01, "front wheels, N·m per rad/s"),
-            "max_torque_nm": ParamSpec(0.12, 0.01, 20.0, 0.12, 0.05, "largest torque of one wheel's drive, N·m"),
+            "rear_gain_nms": ParamSpec(0.02, 1e-3, 10.0, start=0.02, scale=0.01, doc="rear wheels, N·m per rad/s"),
+            "front_gain_nms": ParamSpec(0.02, 1e-3, 10.0, start=0.02, scale=0.01, doc="front wheels, N·m per rad/s"),
+            "max_torque_nm": ParamSpec(
+                0.12, 0.01, 20.0, start=0.12, scale=0.05, doc="largest torque of one wheel's drive, N·m"
+            ),
         },
         acts_on="model",
         candidate=False,
     ),
 }
 """The effects, by name. Order of application of the command effects (fixed, whatever the file's order):
-steering offset, gain and saturation, then delay, then lag, then understeer; speed gain, then delay, then lag.
+steering offset, gain and saturation, then delay, then lag, then the slew rate, then understeer; speed gain, then
+delay, then lag, then the rate.
 The model effects (``tyre_friction``, ``chassis``, ``wheels``, ``drive``) are properties of the car itself."""
 
 MODEL_EFFECTS = tuple(name for name, spec in EFFECTS.items() if spec.acts_on == "model")
@@ -252,7 +285,7 @@ def load_calibration(path: str | Path | Traversable) -> CarCalibration:
         return CarCalibration.model_validate(data)
     except ValidationError as exc:
         err = exc.errors()[0]
-        where = ".".join(str(p) for p in err["loc"])
+        where = error_location(err["loc"])
         msg = err["msg"].removeprefix("Value error, ")
         raise CalibrationError(f"car calibration {path}: {where + ': ' if where else ''}{msg}") from None
 

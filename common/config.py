@@ -111,6 +111,10 @@ class AugmentationConfig(_Strict):
     """Probability of salt-and-pepper noise on a frame."""
     salt_pepper_amount: float = Field(0.02, ge=0, le=0.5)
     """Fraction of pixels set to black or white when the noise is applied."""
+    sharpen_prob: float = Field(0.0, ge=0, le=1)
+    """Probability of sharpening a frame (an unsharp mask: the frame plus a multiple of itself minus its blur)."""
+    sharpen_max: float = Field(1.5, ge=0, le=5)
+    """Largest sharpening amount; each sharpened frame draws its amount from [0, this]."""
 
 
 class RandomizationConfig(_Strict):
@@ -145,6 +149,38 @@ class RandomizationConfig(_Strict):
     """Per-frame image augmentations."""
 
 
+RGB = tuple[int, int, int]
+
+
+class WorldCondition(_Strict):
+    """A held-out condition of the world (``racer eval --condition``; ``common/conditions.py`` names them): what
+    the camera sees and how the car is driven differ from training in these ways. All off by default."""
+
+    speed_cap_mps: float | None = Field(None, gt=0, le=4.0)
+    """The car's speed is capped here whatever the policy asks (the paper's 0.5 and 1 m/s on the real track), m/s."""
+    road: RGB | None = None
+    """Road colour, RGB 0-255 (None: the episode's)."""
+    border: RGB | None = None
+    """Border-line colour."""
+    center: RGB | None = None
+    """Centre-line colour (the road's for no centre line)."""
+    background: RGB | None = None
+    """What lies beside the track (the floor)."""
+    sky: RGB | None = None
+    """What lies beyond it, above the horizon (walls, barriers, the room)."""
+    sunlight: float = Field(0.0, ge=0, le=1)
+    """Strong sunlight: exposure up, a glare patch and hard-edged shadows across the frame, fixed per episode
+    (1 = a bright sunny window)."""
+    camera_pitch_deg: float = Field(0.0, ge=-10, le=10)
+    """Added to the camera's downward tilt, degrees (a camera mounted differently)."""
+    blur_px: float = Field(0.0, ge=0, le=5)
+    """Gaussian blur of the frame, sigma in pixels (an out-of-focus or dirty lens, motion)."""
+    sensor_noise: float = Field(0.0, ge=0, le=64)
+    """Gaussian sensor noise per pixel, standard deviation in grey levels (0-255)."""
+    frame_latency: int = Field(0, ge=0, le=5)
+    """The policy sees the frame from this many steps ago (a slower camera pipeline), steps at 15 Hz."""
+
+
 class EnvConfig(_Strict):
     """One simulated world: track, car, camera, reward, actions and randomization."""
 
@@ -171,6 +207,8 @@ class EnvConfig(_Strict):
     race: RaceConfig = Field(default_factory=RaceConfig)
     """The race type (time trial, object avoidance, head-to-bot) with its obstacles, bot cars and evaluation
     penalties (``common/race.py``)."""
+    condition: WorldCondition = Field(default_factory=WorldCondition)
+    """A held-out condition the env is driven in (evaluation only; training leaves it off)."""
 
 
 class WorkerEnv(_Strict):

@@ -12,12 +12,21 @@ from common.errors import OptionError
 _DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([smh]?)\s*$")
 
 
-def parse_duration(text: str) -> float:
-    """Seconds in ``90s``, ``5m``, ``1.5h`` or a bare number of seconds; OptionError naming the text otherwise."""
+def parse_duration(text: str, name: str = "duration") -> float:
+    """Seconds in ``90s``, ``5m`` or ``1.5h``, given by a user as ``name`` (a flag, an env var, a key); an
+    OptionError naming it and the text otherwise.
+
+    A bare number is refused: ``5`` given to ``--time-limit`` meant five minutes to the user who typed it and was
+    five seconds to racer, a run over before it began. Seconds that are a number already (a run's options as JSON)
+    are a float field, not text for this parser.
+    """
     m = _DURATION.match(text)
     if not m:
-        raise OptionError(f"duration {text!r} is not valid: use a number with s, m or h (90s, 5m, 2h)")
-    return float(m.group(1)) * {"": 1, "s": 1, "m": 60, "h": 3600}[m.group(2)]
+        raise OptionError(f"{name} {text!r} is not valid: use a number with s, m or h (90s, 5m, 2h)")
+    number, unit = m.groups()
+    if not unit:
+        raise OptionError(f"{name} {text.strip()}: give a unit: {number}s, {number}m or {number}h")
+    return float(number) * {"s": 1, "m": 60, "h": 3600}[unit]
 
 
 class Deadline(BaseModel):

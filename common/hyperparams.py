@@ -190,8 +190,7 @@ class Hyperparameters(BaseModel):
     """racer: each rollback multiplies the learning rate (and what the schedule gives later) by this."""
     collapse_lr_floor: float = Field(0.1, ge=0, le=1)
     """racer: the rollbacks never take the learning rate below this fraction of the schedule's (0: no floor). Without
-    one, a run that keeps rolling back to an early best halves its rate each time until learning stops (2026-11-26:
-    17 rollbacks took one seed's rate to 1.9e-8)."""
+    one, a run that keeps rolling back to an early best halves its rate each time until learning stops."""
     collapse_slowdown: float | None = Field(None, gt=0)
     """racer: an evaluation whose mean lap is more than ``1 + collapse_slowdown`` times the best checkpoint's
     also counts as collapsed (0.15: 15 % slower), so the guard also undoes a drift to slower laps, not only lost

@@ -50,6 +50,23 @@ class Keys:
         return f"{self.base}:trainer"
 
     @property
+    def trainer_beat(self) -> str:
+        """String key with a TTL: the trainer process's heartbeat (TrainerBeat JSON), refreshed by its own thread so
+        that a long PPO update never reads as a dead trainer."""
+        return f"{self.base}:trainer_beat"
+
+    @property
+    def trainer_end(self) -> str:
+        """String key: why and where the trainer stopped (TrainerEnd JSON), written as it exits."""
+        return f"{self.base}:trainer_end"
+
+    @property
+    def segments_added(self) -> str:
+        """Counter: segments ever pushed to the stream (INCRBY with each push; Redis 6.2's XINFO STREAM does not
+        count the entries added, 7's does)."""
+        return f"{self.base}:segments_added"
+
+    @property
     def worker_slots(self) -> str:
         """Counter: a worker started without an index takes the next one (INCR), so compose workers get 0, 1, …"""
         return f"{self.base}:worker_slots"

@@ -56,8 +56,8 @@ import json
 import math
 import threading
 import time
-from dataclasses import dataclass, field
-from typing import ClassVar, Self
+from dataclasses import KW_ONLY, dataclass, field
+from typing import ClassVar, Literal, Self
 
 import cv2
 import numpy as np
@@ -65,6 +65,7 @@ import zstandard
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from common.defaults import MAX_SEGMENT_STEPS
+from common.errors import error_location
 from common.sensors import LidarSpec
 
 SCHEMA_VERSION = 2
@@ -112,6 +113,7 @@ class EpisodeSummary:
     """Sum of rewards."""
     status: str
     """DeepRacer episode_status at the end (off_track, lap_complete, ...)."""
+    _: KW_ONLY
     track: str = ""
     lap_time_s: float | None = None
     """Simulated seconds for a completed lap, else None."""
@@ -125,6 +127,7 @@ class Segment:
     worker_id: str
     policy_version: int
     env_seed: int
+    _: KW_ONLY
     arrays: dict[str, np.ndarray]
     episodes: list[EpisodeSummary] = field(default_factory=list)
     created: float = field(default_factory=time.time)
@@ -467,7 +470,7 @@ class _Message(BaseModel):
             return cls.model_validate_json(raw)
         except ValidationError as exc:
             first = exc.errors()[0]
-            where = ".".join(str(p) for p in first["loc"]) or "message"
+            where = error_location(first["loc"]) or "message"
             raise ProtocolError(cls._reason, f"{cls.__name__}.{where}: {first['msg']}") from None
 
 
@@ -496,6 +499,40 @@ class Heartbeat(_Message):
     """Wall-clock time the worker started acting with ``policy_version``, epoch seconds."""
     max_rss_mb: float = 0.0
     """Peak resident memory of the worker process, MB."""
+
+
+TrainerPhase = Literal["starting", "collecting", "updating", "stopping"]
+"""What the trainer process is doing: loading or resuming the run, reading segments, running a PPO update, saving
+its last checkpoint on the way out."""
+
+
+class TrainerBeat(_Message):
+    """The trainer process's liveness, refreshed by a thread of its own every few seconds whatever the main loop is
+    doing (a PPO update on a loaded machine can take minutes), in a key with a TTL."""
+
+    _reason: ClassVar[str] = "bad_trainer_beat"
+    phase: TrainerPhase
+    since: float
+    """Wall-clock time the phase began, epoch seconds."""
+    policy_version: int = Field(ge=0)
+    pid: int
+    host: str
+    time: float
+
+
+EndReason = Literal["time_limit", "max_updates", "stopped"]
+"""Why a trainer stopped: ``time_limit``: its deadline passed; ``max_updates``: ``term_cond_max_episodes`` policy
+updates done; ``stopped``: asked to stop (a signal)."""
+
+
+class TrainerEnd(_Message):
+    """Why and where the trainer stopped: written once as it exits, kept after its status and heartbeat expire."""
+
+    _reason: ClassVar[str] = "bad_trainer_end"
+    reason: EndReason
+    policy_version: int = Field(ge=0)
+    env_steps: int = Field(ge=0)
+    time: float
 
 
 class EvaluationSummary(_Message):

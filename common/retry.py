@@ -15,12 +15,10 @@ from typing import TypeVar
 
 import redis
 
+from common.defaults import DEFAULT_GIVE_UP_S
 from common.errors import UserError
 
 T = TypeVar("T")
-
-DEFAULT_GIVE_UP_S = 600.0
-"""How long a role process waits through one outage before it exits with an error, seconds."""
 
 
 class OutageError(UserError, RuntimeError):

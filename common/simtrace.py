@@ -20,7 +20,7 @@ only worker indexes 0-9 load and a folder ``10`` or above makes its whole load f
 workers 0..N-1; give compose workers ``RACER_WORKER_INDEX`` 0-9, not the random default), worker 0 must have written
 a file for the folder to be recognised, and only ``0-iteration.csv`` is read in an evaluation folder. It reads
 ``model/model_metadata.json`` and ``ip/hyperparameters.json`` for metadata; the trainer writes copies of the run's
-files there (``Trainer._write_run_files``), so ``load()`` finds them.
+files there (``trainer/checkpoints.py: Checkpoints.write_run_files``), so ``load()`` finds them.
 
 Rows follow DeepRacer's convention (as in its public sim-traces, sim/cars/SOURCES.md): row k is the pose the car was in
 when it chose action k, the reward computed at that pose, and the action chosen there, so the motion from row k to

@@ -79,7 +79,8 @@ from typing import Any
 import yaml
 
 from common.action_space import ActionSpace
-from common.policy import ActorCritic, load_policy
+from common.policy import ActorCritic
+from common.weights import load_policy
 from deploy.deepracer_graph import (
     FRAME_SHAPE,
     POLICY_NODE,
@@ -237,6 +238,7 @@ def export_sim(
     run_id: str,
     checkpoint: str | int,
     out: str | Path,
+    *,
     upload: str | None = None,
     s3_endpoint: str | None = None,
 ) -> dict[str, Any]:

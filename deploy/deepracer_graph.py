@@ -433,7 +433,7 @@ def _variable(tf: Any, name: str, shape: tuple[int, ...]) -> Any:
     return tf.compat.v1.get_variable(name, shape=shape, initializer=zeros, use_resource=False)
 
 
-def _dense(tf: Any, x: Any, name: str, units: int, relu: bool, activation_name: str = "") -> Any:
+def _dense(tf: Any, x: Any, name: str, units: int, relu: bool, *, activation_name: str = "") -> Any:
     with tf.compat.v1.variable_scope(name):
         kernel = _variable(tf, "kernel", (int(x.shape[-1]), units))
         bias = _variable(tf, "bias", (units,))
@@ -459,10 +459,12 @@ def _embedder(tf: Any, x: Any, layout: Layout, sensor: str) -> Any:
         # The camera's dense layers are numbered on after the convs: Dense_<2k>, then its activation at 2k + 1.
         first = len(layout.convs)
         for i, (units, name) in enumerate(zip(layout.camera_dense, camera_dense_names(layout), strict=True)):
-            x = _dense(tf, x, name, units, True, f"BatchnormActivationDropout_{2 * (first + i) + 1}_activation")
+            x = _dense(
+                tf, x, name, units, True, activation_name=f"BatchnormActivationDropout_{2 * (first + i) + 1}_activation"
+            )
     else:
         for i, (units, name) in enumerate(zip(layout.lidar_dense, dense_names(len(layout.lidar_dense)), strict=True)):
-            x = _dense(tf, x, name, units, True, f"BatchnormActivationDropout_{2 * i + 1}_activation")
+            x = _dense(tf, x, name, units, True, activation_name=f"BatchnormActivationDropout_{2 * i + 1}_activation")
     with tf.compat.v1.name_scope("flatten"):
         return tf.reshape(x, [-1, math.prod(int(d) for d in x.shape[1:])], name="Reshape")
 
@@ -479,7 +481,7 @@ def _network(tf: Any, index: int, layout: Layout, inputs: dict[str, Any]) -> Any
     with tf.compat.v1.variable_scope("middleware_fc_embedder"):
         names = dense_names(len(layout.middleware))
         for i, (units, name) in enumerate(zip(layout.middleware, names, strict=True)):
-            x = _dense(tf, x, name, units, True, f"BatchnormActivationDropout_{2 * i + 1}_activation")
+            x = _dense(tf, x, name, units, True, activation_name=f"BatchnormActivationDropout_{2 * i + 1}_activation")
     rescaler = tf.compat.v1.get_variable(RESCALER, initializer=1.0, use_resource=False)
     return (1 - rescaler) * tf.stop_gradient(x) + rescaler * x
 

@@ -19,8 +19,9 @@ from pathlib import Path
 import torch
 
 from common.action_space import ActionSpace
-from common.policy import ActorCritic, load_policy
+from common.policy import ActorCritic
 from common.sensors import LIDAR, SECTOR_LIDAR, STEREO_CAMERAS, ObsSpec
+from common.weights import load_policy
 from deploy.car.model_file import OBS_HEIGHT, OBS_WIDTH, stamp
 from model_store import RunStore
 

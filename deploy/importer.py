@@ -23,16 +23,17 @@ from __future__ import annotations
 import tarfile
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import yaml
 
 from common.action_space import load_action_space
-from common.config import network_from_metadata
+from common.config import RunConfig, network_from_metadata
 from common.defaults import DEFAULT_TRACK
 from common.errors import OptionError
-from common.policy import acting_to_bytes, action_space_spec, build_policy, checkpoint_to_bytes
+from common.policy import action_space_spec, build_policy
 from common.sensors import observation_spec
+from common.weights import acting_to_bytes, checkpoint_to_bytes
 from deploy.deepracer_graph import (
     FRAME_SHAPE,
     SCOPE,
@@ -122,11 +123,20 @@ def _track(folder: Path, notes: list[str]) -> str:
     return str(world)
 
 
-def import_model(runs: RunStore, source: str, run_id: str, s3_endpoint: str | None = None) -> dict[str, Any]:
-    """Read the DeepRacer model at ``source`` into a new run ``run_id`` of ``runs`` (version 0); return what was
-    read and the notes on what took racer's defaults."""
-    from racer.runconfig import build_run
+class BuildRun(Protocol):
+    """How a run is built from a user's files (``racer.runconfig.build_run``, passed in by the CLI: ``deploy``
+    imports nothing from ``racer``)."""
 
+    def __call__(
+        self, run_id: str, *, notes: list[str] | None = None, **files: str | None
+    ) -> tuple[RunConfig, dict[str, bytes]]: ...
+
+
+def import_model(
+    runs: RunStore, source: str, run_id: str, s3_endpoint: str | None = None, *, build_run: BuildRun
+) -> dict[str, Any]:
+    """Read the DeepRacer model at ``source`` into a new run ``run_id`` of ``runs`` (version 0), its files checked
+    and its config made by ``build_run``; return what was read and the notes on what took racer's defaults."""
     tensorflow("racer import")  # fail first, in one line, without the extra
     if runs.newest_whole(run_id) is not None:
         raise OptionError(f"run {run_id!r} already exists in {runs.store.uri}: choose another --run-id")
@@ -167,7 +177,7 @@ def import_model(runs: RunStore, source: str, run_id: str, s3_endpoint: str | No
         notes.append("the frozen graph has no policy_log_std: the Gaussian's spread starts at racer's initial one")
     for name, data in files.items():
         runs.write_file(run_id, name, data)
-        # The copies the trainer keeps for deepracer-utils (trainer/process.py: _write_run_files).
+        # The copies the trainer keeps for deepracer-utils (trainer/checkpoints.py: Checkpoints.write_run_files).
         mirror = {"model_metadata.json": "model/", "hyperparameters.json": "ip/"}.get(name)
         if mirror:
             runs.write_file(run_id, mirror + name, data)

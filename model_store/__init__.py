@@ -27,6 +27,7 @@ from model_store.store import (
     StoreUnavailable,
     check_key,
     is_transient,
+    local_store,
     open_store,
 )
 
@@ -47,6 +48,7 @@ __all__ = [
     "checkpoint_key",
     "checkpoint_meta_key",
     "list_models",
+    "local_store",
     "open_store",
     "pointer_key",
 ]

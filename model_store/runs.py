@@ -97,7 +97,7 @@ def simtrace_key(
     """The store key of a sim-trace CSV in the run folder (the layout deepracer-utils reads: ``common/simtrace.py``).
 
     ``training``: ``runs/{run_id}/{worker}/training-simtrace/{iteration}-iteration.csv``, ``worker`` the worker
-    index (one file for all the envs of a worker with several: ``rollout_worker.worker.Rollouts.take_simtrace``).
+    index (one file for all the envs of a worker with several: ``rollout_worker.rollouts.Rollouts.take_simtrace``).
     ``evaluation``: ``runs/{run_id}/evaluation-{evaluation}/evaluation-simtrace/{iteration}-iteration.csv``,
     ``evaluation`` a 14-digit UTC stamp from :func:`evaluation_stamp` (DeepRacer evaluates with one worker, so
     ``worker`` is not part of it; deepracer-utils reads iteration 0 only).
@@ -211,6 +211,7 @@ class RunStore:
         version: int,
         payload: bytes,
         meta: dict[str, Any],
+        *,
         optimizer: bytes | None = None,
         acting: bytes | None = None,
     ) -> dict[str, Any]:

@@ -326,22 +326,31 @@ _SCHEME = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]*)://")
 _BUCKET = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
 
-def open_store(uri: str, endpoint: str | None = None) -> ObjectStore:
-    """Open ``s3://bucket/optional/prefix`` as an S3Store, or a directory path (or ``file://`` URI) as a LocalStore.
-
-    ``endpoint`` is the S3 endpoint URL (else ``AWS_ENDPOINT_URL``, else AWS); it is ignored for directories.
-    """
+def local_store(uri: str) -> LocalStore | None:
+    """The LocalStore of a directory path or ``file://`` URI, or None for a URI of another scheme (``s3://``); it
+    opens nothing, so that a command can ask whether a local store exists before it reads one."""
     if not uri or not uri.strip():
         raise StoreError("empty store URI")
     m = _SCHEME.match(uri)
     if m is None:
         return LocalStore(uri)
-    scheme, rest = m.group(1).lower(), uri[m.end() :]
-    if scheme == "file":
-        if not rest:
-            raise StoreError(f"bad store URI {uri!r}: no path")
-        return LocalStore(rest)
-    if scheme != "s3":
+    if m.group(1).lower() != "file":
+        return None
+    if not uri[m.end() :]:
+        raise StoreError(f"bad store URI {uri!r}: no path")
+    return LocalStore(uri[m.end() :])
+
+
+def open_store(uri: str, endpoint: str | None = None) -> ObjectStore:
+    """Open ``s3://bucket/optional/prefix`` as an S3Store, or a directory path (or ``file://`` URI) as a LocalStore.
+
+    ``endpoint`` is the S3 endpoint URL (else ``AWS_ENDPOINT_URL``, else AWS); it is ignored for directories.
+    """
+    local = local_store(uri)
+    if local is not None:
+        return local
+    scheme, rest = uri.split("://", 1)  # local_store took every URI without a scheme
+    if scheme.lower() != "s3":
         raise StoreError(f"bad store URI {uri!r}: use s3://bucket/prefix or a directory path")
     bucket, _, prefix = rest.partition("/")
     if not bucket:

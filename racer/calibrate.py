@@ -17,6 +17,7 @@ from sim.calibration.replay import TIMINGS
 
 def run_calibrate(
     logs: list[Path],
+    *,
     apply: str | Path | None = None,
     out: Path | None = None,
     png: Path | None = None,
@@ -47,7 +48,14 @@ def run_calibrate(
         result.report["fit_on"] = []  # nothing was fitted here: the calibration came from elsewhere
         result.report["calibration"] = str(apply)
     else:
-        result = calibrate(trajectories, effects, max_windows or MAX_FIT_WINDOWS, say, timing, base_car)
+        result = calibrate(
+            trajectories,
+            effects,
+            max_windows=max_windows or MAX_FIT_WINDOWS,
+            progress=say,
+            timing=timing,
+            base=base_car,
+        )
         if out is not None:
             save_calibration(result.calibration, out)
             say(f"wrote {out}")

@@ -12,12 +12,13 @@ import sys
 from typing import Annotated, Any
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 from typer.core import TyperGroup
 
 from common.errors import UserError, one_line
 from racer.commands import bench, car_model, deploy, evaluate, models, roles, tracks, train, view
+from racer.console import new_console
+from racer.help import use_racer_help_layout
 from racer.lifecycle import USER_ERROR_EXIT
 
 
@@ -41,7 +42,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
 
 def _print_error(message: str) -> None:
     # Escaped: a message is plain text (a path, or "pip install 'racer[deepracer]'"), not rich markup.
-    Console(stderr=True).print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+    new_console(stderr=True).print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
 
 
 class _UserErrorsInOneLine(TyperGroup):
@@ -56,13 +57,14 @@ class _UserErrorsInOneLine(TyperGroup):
 
 
 app = typer.Typer(cls=_UserErrorsInOneLine, no_args_is_help=True, help="racer: DeepRacer-style RL on MuJoCo.")
+use_racer_help_layout()  # option names whole in --help at any width (racer/help.py)
 
 
 def _version(value: bool) -> None:
     if value:
         from importlib.metadata import version
 
-        Console().print(f"racer {version('racer')}", highlight=False)
+        new_console().print(f"racer {version('racer')}", highlight=False)
         raise typer.Exit()
 
 
@@ -118,6 +120,6 @@ def main() -> None:
         _print_error(f"{exc.format_message()}{_given_value(exc)}{hint}")
         sys.exit(getattr(exc, "exit_code", USER_ERROR_EXIT))
     except typer.Abort:
-        Console(stderr=True).print("aborted")
+        new_console(stderr=True).print("aborted")
         sys.exit(130)
     sys.exit(code if isinstance(code, int) else 0)

@@ -18,9 +18,10 @@ from rich.live import Live
 
 from common.bus import Bus
 from common.config import RunConfig
-from common.redis_util import connect, connect_checked, redact
+from common.redis_util import connect_checked, redact
 from model_store import LocalStore, RunStore, open_store
 from model_store.runs import local_run_dir, run_prefix
+from racer.console import new_console
 from racer.embedded_redis import EmbeddedRedis
 from racer.lifecycle import USER_ERROR_EXIT, RoleFailed, spawn_role, stop_all
 from racer.options import RunOptions
@@ -59,14 +60,30 @@ def progress_line(elapsed_s: float, limit_s: float | None, status_line: str) -> 
     return f"[{_duration(elapsed_s)}{left}] {status_line}"
 
 
-def _status_line(status: dict | None, procs_alive: int, workers: int, evaluation: dict | None = None) -> str:
+def _status_line(
+    status: dict | None, beat: dict | None, workers: tuple[int, int], evaluation: dict | None = None
+) -> str:
+    """The live line: what the trainer is doing now (its heartbeat: starting, or a PPO update and for how long),
+    its figures (its last status), the workers (alive, of how many) and the last evaluation."""
+    alive, total = workers
+    doing = ""
+    if beat is not None and beat["phase"] in ("starting", "updating"):
+        for_s = max(0.0, time.time() - beat["since"])
+        doing = (
+            f"trainer starting ({for_s:.0f} s)"
+            if beat["phase"] == "starting"
+            else f"PPO update from v{beat['policy_version']} ({for_s:.0f} s)"
+        )
     if not status:
-        return f"starting… ({procs_alive} of {workers} workers running)"
+        return f"{doing or 'starting…'} ({alive} of {total} workers running)"
     line = (
-        f"iter {status['iteration']}  v{status['policy_version']}  steps {status['env_steps']}  "
+        f"iter {status['iteration']}  v{status['policy_version']}  "
+        f"trained on {status.get('trained_env_steps', 0):,} of {status['env_steps']:,} steps  "
         f"{status['steps_per_s']:.0f} steps/s  progress {status['mean_progress']:.1f}%  "
-        f"reward {status['mean_reward']:.1f}  workers {len(status['workers'])}/{workers}"
+        f"reward {status['mean_reward']:.1f}  workers {len(status['workers'])}/{total}"
     )
+    if doing:
+        line = f"{doing}  {line}"
     if status.get("silent_workers"):
         line += f"  silent: {', '.join(status['silent_workers'])}"
     if evaluation:
@@ -78,9 +95,8 @@ def _status_line(status: dict | None, procs_alive: int, workers: int, evaluation
 @contextlib.contextmanager
 def sigterm_as_ctrl_c():  # noqa: ANN201 - a context manager
     """Within, SIGTERM (``kill``, ``docker stop``, systemd) stops ``racer train`` as Ctrl-C does: the roles run in
-    their own sessions, so without this a SIGTERM ended the launcher alone and left the trainer, the workers and
-    the evaluator running (seen: ``kill`` of a ``racer bench race`` left all four). Only the main thread can set a
-    handler; elsewhere this does nothing."""
+    their own sessions, so without this a SIGTERM would end the launcher alone and leave the trainer, the workers
+    and the evaluator running. Only the main thread can set a handler; elsewhere this does nothing."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -102,7 +118,7 @@ def run_train(run: RunConfig, opts: RunOptions, run_files: dict[str, bytes], con
     and the trainer gets it with the rest of ``opts`` (``--options``): every process stops at the same moment.
     Returns the trainer's last status. Raises RoleFailed if the trainer fails or every worker has stopped.
     """
-    console = console or Console()
+    console = console or new_console()
     opts = opts.with_defaults()
     _check_store(opts.store, opts.s3_endpoint)
     if opts.redis_url:
@@ -112,49 +128,40 @@ def run_train(run: RunConfig, opts: RunOptions, run_files: dict[str, bytes], con
         redis_url = opts.redis_url or stack.enter_context(EmbeddedRedis()).url
         # Registered after the Redis, so removed before it stops: `racer status` never finds a dead one recorded.
         stack.callback(remove_redis_record, write_redis_record(opts.store, run.run_id, redis_url))
-        console.print(f"Redis: {redact(redis_url)} ({_status_hint(run.run_id, opts.store)})", highlight=False)
+        bus = Bus.connect(redis_url, run.run_id)  # the launcher's one connection: the version, then the live line
+        version = bus.server_version()  # racer runs on 6.2 and 7.x: say which
+        hint = _status_hint(run.run_id, opts.store)
+        console.print(f"Redis {version}: {redact(redis_url)} ({hint})", highlight=False, soft_wrap=True)
         if opts.view is not None:
             from racer.view.server import ViewOptions, ViewServer
 
-            view = ViewOptions(run.run_id, opts.store, opts.s3_endpoint, redis_url, *opts.view, run=run)
+            host, port = opts.view
+            view = ViewOptions(
+                run.run_id, opts.store, s3_endpoint=opts.s3_endpoint, redis_url=redis_url, host=host, port=port, run=run
+            )
             console.print(f"racer view: {stack.enter_context(ViewServer(view)).url}", highlight=False, soft_wrap=True)
         work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="racer-train-")))
         logs = local_run_dir(opts.store, run.run_id) / "logs"
         logs.mkdir(parents=True, exist_ok=True)
-        common = ["--redis", redis_url, "--store", opts.store]
-        common += ["--s3-endpoint", opts.s3_endpoint] if opts.s3_endpoint else []
         opts = opts.model_copy(update={"redis_url": redis_url, "run_id": run.run_id}).started()
-        trainer = spawn_role(trainer_args(run, opts, run_files, work, common), logs / "trainer.log")
-        worker_common = [*common, "--envs-per-worker", str(opts.envs_per_worker)]
-        workers = [
-            spawn_role(_worker_args(run.run_id, k, worker_common), logs / f"worker-{k}.log")
-            for k in range(int(opts.workers or 0))
-        ]
-        evaluator = []
-        if opts.evaluate:
-            eval_args = ["evaluator", "--run-id", run.run_id, *common, "--every", str(opts.eval_every)]
-            eval_args += ["--episodes", str(opts.eval_episodes), "--nice", str(opts.eval_nice)]
-            eval_args += ["--device", opts.device]
-            eval_args += [arg for t in opts.eval_tracks for arg in ("--track", t)]
-            eval_args += [] if opts.eval_both_directions else ["--forward-only"]
-            evaluator.append(spawn_role(eval_args, logs / "evaluator.log"))
+        trainer = spawn_role(trainer_args(run, opts, run_files, work), logs / "trainer.log")
+        workers = [spawn_role(opts.worker_args(k), logs / f"worker-{k}.log") for k in range(int(opts.workers or 0))]
+        evaluator = [spawn_role(opts.evaluator_args(), logs / "evaluator.log")] if opts.evaluate else []
         try:
-            restarts = _Workers(workers, worker_common, logs, opts.worker_restarts)
-            return _watch(run, opts, redis_url, trainer, restarts, console)
+            restarts = _Workers(workers, opts, logs)
+            return _watch(run, opts, bus, trainer=trainer, workers=restarts, console=console)
         finally:
             stop_all([*workers, *evaluator, trainer])
 
 
-def trainer_args(
-    run: RunConfig, opts: RunOptions, run_files: dict[str, bytes], work: Path, common: list[str]
-) -> list[str]:
+def trainer_args(run: RunConfig, opts: RunOptions, run_files: dict[str, bytes], work: Path) -> list[str]:
     """``racer trainer``'s arguments under ``racer train``: the run's config, its files and ``opts`` (with the
-    deadline) written as JSON into ``work``."""
+    deadline) written as JSON into ``work``; the trainer takes its options from that JSON whole."""
     (work / "run.json").write_text(run.model_dump_json())
     (work / "options.json").write_text(opts.model_dump_json())
     for name, data in run_files.items():
         (work / name).write_bytes(data)
-    args = ["trainer", "--config", str(work / "run.json"), "--files", str(work), *common]
+    args = ["trainer", "--config", str(work / "run.json"), "--files", str(work), *opts.role_args()]
     return [*args, "--options", str(work / "options.json")]
 
 
@@ -197,10 +204,6 @@ def _check_store(store: str, endpoint: str | None) -> None:
         next(iter(opened.list("runs/")), None)
 
 
-def _worker_args(run_id: str, k: int, common: list[str]) -> list[str]:
-    return ["worker", "--run-id", run_id, "--index", str(k), *common]
-
-
 def _last_line(path: Path) -> str:
     lines = path.read_text(errors="replace").strip().splitlines() if path.exists() else []
     return lines[-1] if lines else ""
@@ -213,13 +216,13 @@ class _Workers:
     procs: list[subprocess.Popen]
     """Worker k's current process; the list is the caller's and is updated in place, so that cleanup stops
     restarted workers too."""
-    common: list[str]
+    opts: RunOptions
+    """The run's options: each worker's command line (``RunOptions.worker_args``) and its restarts allowed."""
     logs: Path
-    max_restarts: int
     restarts: dict[int, int] = field(default_factory=dict)
     given_up: set[int] = field(default_factory=set)
 
-    def check(self, run_id: str, console: Console) -> None:
+    def check(self, console: Console) -> None:
         """Report workers that exited since the last check and restart those allowed."""
         for k, p in enumerate(self.procs):
             if p.poll() is None or k in self.given_up:
@@ -227,15 +230,17 @@ class _Workers:
             log = self.logs / f"worker-{k}.log"
             msg = f"worker {k} exited with code {p.returncode}: {_last_line(log)[-200:]} (log: {log})"
             used = self.restarts.get(k, 0)
-            if p.returncode == USER_ERROR_EXIT or used >= self.max_restarts:
+            if p.returncode == USER_ERROR_EXIT or used >= self.opts.worker_restarts:
                 self.given_up.add(k)
                 console.print(f"[yellow]{msg}; not restarting", highlight=False, soft_wrap=True)
                 continue
             self.restarts[k] = used + 1
             console.print(
-                f"[yellow]{msg}; restarting it ({used + 1} of {self.max_restarts})", highlight=False, soft_wrap=True
+                f"[yellow]{msg}; restarting it ({used + 1} of {self.opts.worker_restarts})",
+                highlight=False,
+                soft_wrap=True,
             )
-            self.procs[k] = spawn_role(_worker_args(run_id, k, self.common), log)
+            self.procs[k] = spawn_role(self.opts.worker_args(k), log)
 
     @property
     def all_given_up(self) -> bool:
@@ -251,12 +256,12 @@ class _Workers:
 def _watch(
     run: RunConfig,
     opts: RunOptions,
-    redis_url: str,
+    bus: Bus,
+    *,
     trainer: subprocess.Popen,
     workers: _Workers,
     console: Console,
 ) -> dict:
-    bus = Bus(connect(redis_url), run.run_id)
     started = time.monotonic()
     deadline = opts.deadline
     status: dict | None = None
@@ -279,16 +284,23 @@ def _watch(
                     raise RoleFailed(
                         f"the trainer exited with code {trainer.returncode}: {_last_line(log)} (log: {log})"
                     )
-                workers.check(run.run_id, console)
+                workers.check(console)
                 if workers.all_given_up:
                     tail = _last_line(workers.logs / "worker-0.log")
                     raise RoleFailed(f"every worker has stopped (worker 0: {tail.removeprefix('error: ')})")
                 try:
                     status = bus.trainer_status() or status
+                    beat = bus.trainer_beat()
                     evals = [e.model_dump() for e in bus.evaluations()[0]]
-                    line = _status_line(status, workers.alive, len(workers.procs), evals[-1] if evals else None)
+                    line = _status_line(
+                        status,
+                        None if beat is None else beat.model_dump(),
+                        (workers.alive, len(workers.procs)),
+                        evals[-1] if evals else None,
+                    )
                 except redis.RedisError as exc:  # the roles ride out the outage; so does the display
-                    line = f"Redis at {redact(redis_url)} unreachable ({type(exc).__name__}); the roles are retrying"
+                    where = redact(str(opts.redis_url))
+                    line = f"Redis at {where} unreachable ({type(exc).__name__}); the roles are retrying"
                 elapsed = time.monotonic() - started
                 if live is not None:
                     live.update(f"{_time_bar(elapsed, opts.time_limit_s)}\n{line}")
@@ -315,7 +327,7 @@ def done_line(runs: RunStore, run_id: str, trained_s: float) -> str:
     rows = runs.read_metrics(run_id, missing_ok=True)
     last = rows[-1] if rows else {}
     iterations, env_steps = int(last.get("iteration", 0)), int(last.get("env_steps", 0))
-    return f"done: {iterations} iterations, {env_steps:,} env steps in {trained_s:.0f} s"
+    return f"done: {iterations} iterations, trained on {env_steps:,} env steps in {trained_s:.0f} s"
 
 
 def run_summary(run_id: str, runs: RunStore, store: str, s3_endpoint: str | None) -> list[str]:

@@ -51,7 +51,7 @@ def compute_limit(
     line = racing_line(load_track(track), limits, margin)
     optimised = time.monotonic()
     driven = drive_line(track, line, limits, calibration)
-    report = _report(track, car, margin, limits, line, driven)
+    report = _report(track, car, margin, limits=limits, line=line, driven=driven)
     report["car_limits_cached"] = cached
     report["seconds"] = {
         "measure_car": measured - started,
@@ -64,7 +64,7 @@ def compute_limit(
 
 
 def _report(
-    track: str, car: str, margin: float, limits: CarLimits, line: RacingLine, driven: DrivenLap
+    track: str, car: str, margin: float, *, limits: CarLimits, line: RacingLine, driven: DrivenLap
 ) -> dict[str, Any]:
     ratio = None if driven.lap_time is None else driven.lap_time / line.lap_time
     return {

@@ -10,11 +10,17 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
 
 from common.config import RunConfig
 from common.deadline import Deadline, parse_duration
-from common.defaults import DEFAULT_EVAL_EPISODES, DEFAULT_TRACK, DEFAULT_WORKERS
+from common.defaults import (
+    DEFAULT_EVAL_EPISODES,
+    DEFAULT_EVAL_NICE,
+    DEFAULT_TRACK,
+    DEFAULT_TRAINER_THREADS,
+    DEFAULT_WORKERS,
+)
 from common.errors import OptionError
 from common.hyperparams import check_cooldown
 from common.race import RaceConfig
@@ -30,6 +36,11 @@ _PATHS = ("track", "reward_fn", "action_space", "hyperparams", "randomization", 
 
 _FLAGS = {"time_limit_s": "--time-limit", "eval_tracks": "--eval-track", "redis_url": "--redis"}
 """The command-line flag of each option whose name differs from its field's."""
+
+
+def _flag(field: str) -> str:
+    """The command-line flag of an option's field."""
+    return _FLAGS.get(field, "--" + field.replace("_", "-"))
 
 
 class RunOptions(BaseModel):
@@ -72,11 +83,12 @@ class RunOptions(BaseModel):
     envs_per_worker: int = Field(1, ge=1)
     """Envs each worker steps side by side (``racer worker --envs-per-worker``)."""
     time_limit_s: float | None = Field(None, gt=0)
-    """``--time-limit`` (``90s``, ``5m``, ``2h`` or seconds), parsed here; None: until stopped."""
+    """Seconds: ``--time-limit``'s text (``90s``, ``5m``, ``2h``; a bare number is refused) is parsed here, and a
+    number is taken as seconds (the options' JSON, ``racer trainer --options``); None: until stopped."""
     deadline: Deadline | None = None
     """When the run stops: fixed once from ``time_limit_s`` as the roles start (``started``)."""
-    trainer_threads: int = Field(2, ge=1)
-    """PyTorch threads of the trainer: with max_policy_lag 0 the workers wait while it trains, so it can use two."""
+    trainer_threads: int = Field(DEFAULT_TRAINER_THREADS, ge=1)
+    """PyTorch threads of the trainer (``common.defaults.DEFAULT_TRAINER_THREADS``)."""
     precision: str = "auto"
     """The trainer's PPO update arithmetic: auto, fp32, bf16 or fp16 (``racer trainer --precision``)."""
     device: str = "auto"
@@ -92,9 +104,8 @@ class RunOptions(BaseModel):
     """Tracks the evaluator drives (empty = the run's track)."""
     eval_both_directions: bool = True
     """The evaluator also drives every start in the reverse direction (False: as a DeepRacer race, forward only)."""
-    eval_nice: int = Field(5, ge=0, le=19)
-    """The evaluator's nice increment: on a machine shared with the trainer and workers it yields the CPU to them.
-    It still takes a share: an evaluation running during a PPO update slowed that update by up to ~50 %."""
+    eval_nice: int = Field(DEFAULT_EVAL_NICE, ge=0, le=19)
+    """The evaluator's nice increment (``common.defaults.DEFAULT_EVAL_NICE``)."""
     stop_when_robust: int | None = Field(None, ge=1)
     """Stop once this many consecutive evaluated checkpoints complete every evaluation lap."""
     worker_restarts: int = Field(3, ge=0)
@@ -109,15 +120,17 @@ class RunOptions(BaseModel):
             return cls(**flags)
         except ValidationError as exc:
             error = exc.errors()[0]
-            name = str(error["loc"][0]) if error.get("loc") else "options"
-            flag = _FLAGS.get(name, "--" + name.replace("_", "-"))
+            flag = _flag(str(error["loc"][0])) if error.get("loc") else "options"
+            cause = (error.get("ctx") or {}).get("error")
+            if isinstance(cause, OptionError) and str(cause).startswith(f"{flag} "):  # it names the flag already
+                raise cause from None
             reason = str(error.get("msg", "invalid")).removeprefix("Value error, ")
             raise OptionError(f"{flag} {error.get('input')!r}: {reason}") from None
 
     @field_validator("time_limit_s", mode="before")
     @classmethod
-    def _duration(cls, value: object) -> object:
-        return parse_duration(value) if isinstance(value, str) else value
+    def _duration(cls, value: object, info: ValidationInfo) -> object:
+        return parse_duration(value, _flag(info.field_name)) if isinstance(value, str) else value
 
     @field_validator(*_PATHS, mode="before")
     @classmethod
@@ -151,6 +164,27 @@ class RunOptions(BaseModel):
         if self.time_limit_s is None or self.deadline is not None:
             return self
         return self.model_copy(update={"deadline": Deadline.after(self.time_limit_s)})
+
+    # --- each role's command line, derived from these options (racer train's launcher starts the roles with them) ---
+    def role_args(self) -> list[str]:
+        """The flags every role process takes: the run, its Redis and its store. Needs ``run_id`` and
+        ``redis_url`` set (the launcher sets both before it starts a role)."""
+        if self.run_id is None or self.redis_url is None:
+            raise ValueError("a role needs the run id and the Redis URL")
+        args = ["--run-id", self.run_id, "--redis", self.redis_url, "--store", self.store]
+        return args + (["--s3-endpoint", self.s3_endpoint] if self.s3_endpoint else [])
+
+    def worker_args(self, index: int) -> list[str]:
+        """``racer worker``'s command line for worker ``index`` of the run."""
+        return ["worker", *self.role_args(), "--index", str(index), "--envs-per-worker", str(self.envs_per_worker)]
+
+    def evaluator_args(self) -> list[str]:
+        """``racer evaluator``'s command line: how often it evaluates, from how many starts, on which tracks and in
+        which directions, its nice and its device."""
+        args = ["evaluator", *self.role_args(), "--every", str(self.eval_every), "--nice", str(self.eval_nice)]
+        args += ["--device", self.device] + [a for t in self.eval_tracks for a in ("--track", t)]
+        args += ["--episodes", str(self.eval_episodes)] if self.eval_episodes is not None else []
+        return args + ([] if self.eval_both_directions else ["--forward-only"])
 
     def check_run(self, run: RunConfig) -> None:
         """Refuse what the run's hyperparameters need of these options: a cool-down needs a time limit."""

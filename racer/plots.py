@@ -326,15 +326,18 @@ def plot_trajectories(run_id: str, runs: RunStore, out_png: str | Path, version:
 # -- both --------------------------------------------------------------------------------------------------------------
 
 
-def plot_run(run_id: str, runs: RunStore, out_dir: str | Path) -> list[Path]:
+def plot_run(run_id: str, runs: RunStore, out_dir: str | Path, *, checkpoint: Version = "best") -> list[Path]:
     """Write ``training.png`` and (if the run has evaluations) ``trajectories.png`` into ``out_dir``.
 
-    Returns the paths written. A run without evaluations gets only training.png, with a warning logged.
+    ``checkpoint`` picks the evaluation trajectories.png draws, as :func:`plot_trajectories`'s ``version``: by
+    default ``"best"``, the checkpoint the evaluator chose (the run's ``best.json``, as ``racer models ls`` marks it),
+    since that is the one a user exports and races, not whichever was evaluated last. Returns the paths written. A
+    run without evaluations gets only training.png, with a warning logged.
     """
     out = Path(out_dir)
     written = [plot_training(run_id, runs, out / "training.png")]
     if runs.evaluation_versions(run_id):
-        written.append(plot_trajectories(run_id, runs, out / "trajectories.png"))
+        written.append(plot_trajectories(run_id, runs, out / "trajectories.png", version=checkpoint))
     else:
         log.warning("run %r has no evaluations yet: skipped trajectories.png", run_id)
     return written

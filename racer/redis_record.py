@@ -13,6 +13,7 @@ its owner only: a ``--redis`` URL may hold a password (the role processes alread
 
 from __future__ import annotations
 
+import difflib
 import json
 import numbers
 import os
@@ -98,11 +99,7 @@ def locate_run(store: str, run_id: str | None, redis_url: str | None) -> tuple[s
     if run_id:
         record = live_redis_record(store, run_id)
         if record is None:
-            where = redis_record_path(store, run_id)
-            raise OptionError(
-                f"--run-id {run_id}: no racer train of it is running here ({where} is missing or its launcher has "
-                "stopped); give --store where it trains, or --redis URL for a run started another way"
-            )
+            raise OptionError(_not_running(store, run_id))
         return run_id, record["url"]
     newest = newest_live_run(store)
     if newest is None:
@@ -111,6 +108,25 @@ def locate_run(store: str, run_id: str | None, redis_url: str | None) -> tuple[s
             "launcher): give --store where it trains, or --redis URL and --run-id"
         )
     return newest[0], newest[1]["url"]
+
+
+def _not_running(store: str, run_id: str) -> str:
+    """Why ``run_id`` has no live record: a run of this store that has stopped, or no such run here (with the
+    closest run ids, for a misspelt one)."""
+    runs = local_runs_dir(store)
+    if (runs / run_id).is_dir():
+        return (
+            f"--run-id {run_id}: its racer train is not running any more (finished or killed: "
+            f"{redis_record_path(store, run_id)} is gone or its launcher has stopped); its checkpoints: racer models "
+            f"ls --store {store} --run-id {run_id}; --redis URL for a run started another way"
+        )
+    known = sorted(p.name for p in runs.glob("*") if p.is_dir() and RUN_ID.match(p.name)) if runs.is_dir() else []
+    close = difflib.get_close_matches(run_id, known, n=3)
+    hint = f" (did you mean {', '.join(close)}?)" if close else ""
+    return (
+        f"--run-id {run_id}: no such run in {runs}{hint}; give --store where it trains, or --redis URL for a run "
+        "started another way"
+    )
 
 
 def _alive(pid: int) -> bool:

@@ -1,26 +1,26 @@
 """The rollout worker: poll the policy, run episodes, push segments to Redis, keep a heartbeat.
 
 A worker runs K envs (``--envs-per-worker``, 1 by default) side by side on its track, each with its own seed (so
-its own randomization), and acts for all K in one batched forward pass per step (:class:`Rollouts`), through an
-ONNX Runtime copy of the network (``rollout_worker/onnx_policy.py``): a one-env worker's time goes mostly to that
-forward pass, not to the env, and a batch of K costs much less than K batches of one (docs/speed.md). It reads
-everything about the run from the store (``config.json``, the reward function, the action space) so a worker on
-another machine needs only the run id, the Redis URL and the store URI.
+its own randomization), and acts for all K in one batched forward pass per step (``rollout_worker.rollouts``),
+through an ONNX Runtime copy of the network (``rollout_worker/onnx_policy.py``): a one-env worker's time goes
+mostly to that forward pass, not to the env, and a batch of K costs much less than K batches of one
+(docs/speed.md). It reads everything about the run from the store (``config.json``, the reward function, the
+action space) so a worker on another machine needs only the run id, the Redis URL and the store URI.
 
-Each env fills its own segment: the trainer's GAE (``trainer/process.py: make_batch``) takes a segment as
+Each env fills its own segment: the trainer's GAE (``trainer/learner.py: make_batch``) takes a segment as
 consecutive steps of one env, so a collect pushes K segments, in one Redis round trip. Env j of worker k:
 
 * is seeded with run seed + 1000·k + j (env 0 has the seed a one-env worker always had, so K = 1 is the worker as
   it was, segment for segment);
 * names its segments ``{worker_id}/{j}`` when K > 1 (``{worker_id}`` when K = 1): the trainer tells segments apart
-  by worker id and creation time (``Trainer._accept``), and a segment's ``episode_id`` counts the episodes of the
-  env that drove it (its own frame stack, episode counter and episode summaries);
+  by worker id and creation time (``trainer/intake.py: SegmentIntake.accept``), and a segment's ``episode_id``
+  counts the episodes of the env that drove it (its own frame stack, episode counter and episode summaries);
 * shares the worker's policy version: every step of a collect is acted by the version the collect started with,
   and a newer one is loaded only between collects, for all K at once.
 
 The heartbeat stays one per worker process (``{worker_id}``), counting the env steps and segments of all K envs.
 Training sim-traces stay one CSV per worker and policy version (``model_store/runs.py: simtrace_key``); see
-:meth:`Rollouts.take_simtrace` for how the K envs' episodes are numbered in it.
+:meth:`rollout_worker.rollouts.Rollouts.take_simtrace` for how the K envs' episodes are numbered in it.
 """
 
 from __future__ import annotations
@@ -32,41 +32,39 @@ import socket
 import tempfile
 import threading
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, dataclass
 from functools import partial
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from common.bus import Bus
 from common.config import ENV_SEED_STRIDE, MAX_ENVS_PER_WORKER, EnvConfig, RunConfig
+from common.defaults import DEFAULT_GIVE_UP_S
 from common.errors import OptionError
-from common.framestack import FrameStack
-from common.policy import ActorCritic, acting_from_bytes, action_space_spec, build_policy, checkpoint_from_bytes
-from common.protocol import EpisodeSummary, Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
+from common.policy import ActorCritic
+from common.protocol import Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
 from common.redis_util import redact
-from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
-from common.sensors import ObsSpec, camera_frame_size, observation_spec, split_observation
-from common.simtrace import SimTraceRecorder, merged_csv
+from common.retry import Outage, redis_transient
+from common.weights import acting_from_bytes, checkpoint_from_bytes
 from model_store import RunStore, StoreError, is_transient, open_store
 from model_store.localize import localize_env
 from model_store.runs import simtrace_key
 from rollout_worker.onnx_policy import Actor, acting_copy
+from rollout_worker.rollouts import Rollouts, segment_worker_ids
 from rollout_worker.watch import WatchPublisher
-from sim.env import RacerEnv
 
 log = logging.getLogger("racer.worker")
 
 
 @dataclass
 class WorkerOptions:
-    """How to reach the run, and who this worker is."""
+    """How to reach the run, and who this worker is (keyword-only after the store)."""
 
     run_id: str
     redis_url: str
     store: str = "."
+    _: KW_ONLY
     s3_endpoint: str | None = None
     worker_index: int | None = 0
     """Index k: seeds env j with run seed + 1000·k + j, drives the run's worker_env(k) and names the sim-trace folder.
@@ -86,251 +84,18 @@ class WorkerOptions:
             raise OptionError(f"--envs-per-worker must be an integer from 1 to {MAX_ENVS_PER_WORKER}, got {k!r}")
 
 
-@dataclass
-class _Rollout:
-    """Arrays being filled for the current segment."""
-
-    obs: list = field(default_factory=list)
-    lidar: list = field(default_factory=list)
-    """The LiDAR part of each o_t (only with a LiDAR sensor)."""
-    actions: list = field(default_factory=list)
-    rewards: list = field(default_factory=list)
-    terminated: list = field(default_factory=list)
-    truncated: list = field(default_factory=list)
-    logp: list = field(default_factory=list)
-    values: list = field(default_factory=list)
-    next_values: list = field(default_factory=list)
-    episode_id: list = field(default_factory=list)
-    episodes: list = field(default_factory=list)
-
-
-@dataclass
-class _Env:
-    """One of a worker's envs, and what it carries from one segment to the next."""
-
-    env: RacerEnv
-    index: int
-    """j, its place among the worker's envs."""
-    seed: int
-    segment_worker_id: str
-    """The worker id its segments carry."""
-    stack: FrameStack
-    simtrace: SimTraceRecorder = field(default_factory=SimTraceRecorder)
-    """DeepRacer sim-trace rows of the current iteration."""
-    episode: int = 0
-    """Episodes this env has finished: the number of the one it is driving."""
-    ep_reward: float = 0.0
-    obs: np.ndarray | None = None
-    """The stacked camera observation the next action is chosen from."""
-    lidar: np.ndarray | None = None
-    """Its LiDAR vector (None without a LiDAR sensor)."""
-    watch: WatchPublisher | None = None
-    """What ``racer view`` shows of this env (its pose and camera), published only while a page watches."""
-
-    def observe(self, observation: np.ndarray | dict, first: bool = False) -> None:
-        """Take an env observation apart: its camera frame onto the stack (``obs``), its LiDAR vector (not stacked,
-        as in DeepRacer) into ``lidar``."""
-        camera, self.lidar = split_observation(observation)
-        self.obs = self.stack.reset(camera) if first else self.stack.push(camera)
-
-
-def segment_worker_ids(worker_id: str, envs: int) -> list[str]:
-    """The worker ids of the segments of a worker's ``envs`` envs: its own with one env, ``{worker_id}/{j}`` with
-    more (the trainer drops a segment whose worker id and creation time it has seen: each env needs its own)."""
-    return [worker_id] if envs == 1 else [f"{worker_id}/{j}" for j in range(envs)]
-
-
-class Rollouts:
-    """K envs stepped side by side under one policy, and the segments they fill: the part of a worker that needs
-    neither Redis nor the store (``racer bench worker`` times it as it is).
-
-    ``time_s`` adds up the seconds of ``collect`` (``collect``), of the forward passes with sampling (``act``) and
-    of ``env.step`` (``env``: physics, camera, task, reward function); the rest of ``collect`` is bookkeeping
-    (frame stacks, sim-trace rows, building the segments)."""
-
-    def __init__(
-        self, run: RunConfig, config: EnvConfig, seeds: Sequence[int], segment_worker_ids: Sequence[str]
-    ) -> None:
-        self.run = run
-        self.envs: list[_Env] = [
-            _Env(RacerEnv(config=config), j, seed, wid, FrameStack(run.hyperparams.stack_size))
-            for j, (seed, wid) in enumerate(zip(seeds, segment_worker_ids, strict=True))
-        ]
-        env = self.envs[0].env
-        self.actions = env.actions
-        self.obs_spec: ObsSpec = observation_spec(env.actions.sensor, run.hyperparams.stack_size)
-        self.obs_shape = self.obs_spec.camera_shape(camera_frame_size(env.observation_space))
-        self.env_steps = 0
-        """Env steps of all envs so far."""
-        self.time_s: dict[str, float] = {"collect": 0.0, "act": 0.0, "env": 0.0}
-
-    @property
-    def track_name(self) -> str:
-        """The track the envs drive (a worker's envs share its track)."""
-        return self.envs[0].env.track.name
-
-    @property
-    def episodes(self) -> int:
-        """Episodes finished by all envs so far."""
-        return sum(e.episode for e in self.envs)
-
-    def build_policy(self) -> ActorCritic:
-        """A network for these envs' observations and actions (its weights to be loaded), in eval mode."""
-        model = build_policy(self.obs_shape, action_space_spec(self.actions), self.run.policy, self.actions.sensor)
-        model.eval()
-        return model
-
-    def reset(self) -> None:
-        """Start every env's first episode from its seed."""
-        for e in self.envs:
-            observation, info = e.env.reset(seed=e.seed)
-            e.observe(observation, first=True)
-            e.simtrace.reset(info, self._trace_episode(e))
-            e.ep_reward = 0.0
-
-    def collect(self, actor: Actor, policy_version: int) -> list[Segment]:
-        """``segment_steps`` steps of every env, acted by ``actor`` (the network of ``policy_version``) in one batched
-        forward pass per step for all envs; one segment per env, in env order."""
-        started = time.perf_counter()
-        clock, envs = self.time_s, self.envs
-        ros = [_Rollout() for _ in envs]
-        for _ in range(self.run.segment_steps):
-            t0 = time.perf_counter()
-            actions, logps, values = actor.act_numpy(
-                _batch([e.obs for e in envs]), lidar=_lidar_batch([e.lidar for e in envs])
-            )
-            clock["act"] += time.perf_counter() - t0
-            truncated: list[tuple[_Rollout, int, np.ndarray, np.ndarray | None]] = []
-            for e, ro, action, logp, value in zip(envs, ros, actions, logps, values, strict=True):
-                ro.obs.append(e.obs)
-                if e.lidar is not None:
-                    ro.lidar.append(e.lidar)
-                ro.actions.append(action)
-                ro.logp.append(logp)
-                ro.values.append(value)
-                ro.episode_id.append(e.episode)
-                t0 = time.perf_counter()
-                observation, reward, term, trunc, info = e.env.step(action)
-                clock["env"] += time.perf_counter() - t0
-                e.simtrace.step(action, info, reward, term or trunc)
-                if e.watch is not None:
-                    e.watch.step(observation, info)
-                e.ep_reward += reward
-                ro.rewards.append(reward)
-                ro.terminated.append(term)
-                ro.truncated.append(trunc)
-                if term or trunc:
-                    # The final observation is pushed onto the stack only to bootstrap a truncated step's value.
-                    camera, lidar = split_observation(observation)
-                    final = e.stack.push(camera)
-                    if trunc:
-                        truncated.append((ro, len(ro.next_values), final, lidar))
-                    ro.next_values.append(0.0)  # a truncated step's value is set below
-                    ro.episodes.append(self._summary(e, info))
-                    self._new_episode(e)
-                else:
-                    e.observe(observation)
-                    ro.next_values.append(None)  # V(o_{t+1}) is the next step's value
-            if truncated:  # the envs whose episode hit its time limit this step, valued together
-                bootstrap = self._values(actor, [t[2] for t in truncated], [t[3] for t in truncated])
-                for (ro, t, _, _), v in zip(truncated, bootstrap, strict=True):
-                    ro.next_values[t] = v
-        self.env_steps += self.run.segment_steps * len(envs)
-        segments = self._segments(actor, policy_version, ros)
-        clock["collect"] += time.perf_counter() - started
-        return segments
-
-    def _segments(self, actor: Actor, policy_version: int, ros: list[_Rollout]) -> list[Segment]:
-        # V(o_T) of every env whose segment ends inside an episode, in one forward pass.
-        ending = [i for i, ro in enumerate(ros) if ro.next_values[-1] is None]
-        if ending:
-            last = self._values(actor, [self.envs[i].obs for i in ending], [self.envs[i].lidar for i in ending])
-            for i, v in zip(ending, last, strict=True):
-                ros[i].next_values[-1] = v
-        return [self._segment(e, ro, policy_version) for e, ro in zip(self.envs, ros, strict=True)]
-
-    def _segment(self, e: _Env, ro: _Rollout, policy_version: int) -> Segment:
-        values = np.asarray(ro.values, np.float32)
-        nxt = [v if v is not None else values[t + 1] for t, v in enumerate(ro.next_values)]
-        actions = np.asarray(ro.actions)
-        arrays = {
-            "obs": np.stack(ro.obs),
-            "next_obs": e.obs[None],
-            "actions": actions.astype(np.int64 if self.actions.discrete else np.float32),
-            "rewards": np.asarray(ro.rewards, np.float32),
-            "terminated": np.asarray(ro.terminated, np.uint8),
-            "truncated": np.asarray(ro.truncated, np.uint8),
-            "logp": np.asarray(ro.logp, np.float32),
-            "values": values,
-            "next_values": np.asarray(nxt, np.float32),
-            "episode_id": np.asarray(ro.episode_id, np.int64),
-        }
-        if self.obs_spec.lidar:
-            arrays["lidar"] = np.stack(ro.lidar)
-            arrays["next_lidar"] = e.lidar[None]
-        return Segment(self.run.run_id, e.segment_worker_id, policy_version, e.seed, arrays, ro.episodes)
-
-    def _values(self, actor: Actor, obs: list[np.ndarray], lidar: list[np.ndarray | None]) -> list[float]:
-        """V(o) of stacked camera observations and their LiDAR vectors, in one forward pass."""
-        t0 = time.perf_counter()
-        values = actor.act_numpy(_batch(obs), lidar=_lidar_batch(lidar))[2]
-        self.time_s["act"] += time.perf_counter() - t0
-        return [float(v) for v in values]
-
-    def _summary(self, e: _Env, info: dict) -> EpisodeSummary:
-        p = info["params"]
-        status = info["episode_status"]
-        lap = p["sim_time"] if status == "lap_complete" else None
-        return EpisodeSummary(e.episode, info["steps"], p["progress"], e.ep_reward, status, e.env.track.name, lap)
-
-    def _new_episode(self, e: _Env) -> None:
-        e.episode += 1
-        e.ep_reward = 0.0
-        observation, info = e.env.reset()
-        e.observe(observation, first=True)
-        e.simtrace.reset(info, self._trace_episode(e))
-
-    def _trace_episode(self, e: _Env) -> int:
-        """The sim-trace ``episode`` of env j's n-th episode: n·K + j (see :meth:`take_simtrace`)."""
-        return e.episode * len(self.envs) + e.index
-
-    def take_simtrace(self, include_open: bool = False) -> str | None:
-        """The CSV of the sim-trace rows recorded since the last take (with ``include_open``, the episodes in
-        progress too), None if there are none (``common.simtrace.merged_csv``).
-
-        The K envs write one file, the one a one-env worker writes (``{k}/training-simtrace/{N}-iteration.csv``),
-        not one folder each: deepracer-utils reads worker folders 0-9 only (``common/simtrace.py``), which K folders
-        per worker would soon pass, and a worker is what DeepRacer's layout calls a worker. Env j's n-th episode is
-        episode n·K + j, unique within the worker (deepracer-utils groups by worker and episode) and, with one env,
-        the episode numbers a worker always wrote; each episode's rows are whole and in order, episodes in the
-        order of their numbers."""
-        return merged_csv([e.simtrace for e in self.envs], include_open)
-
-    def close(self) -> None:
-        """Release the envs."""
-        for e in self.envs:
-            e.env.close()
-
-
-def _batch(arrays: list[np.ndarray]) -> np.ndarray:
-    """The arrays as a batch; one array as a view of itself, as a one-env worker always passed it (the same memory
-    to the network gives the same float rounding, so K = 1 pushes bit for bit what it did)."""
-    return arrays[0][None] if len(arrays) == 1 else np.stack(arrays)
-
-
-def _lidar_batch(lidar: list[np.ndarray | None]) -> np.ndarray | None:
-    """A batch of LiDAR vectors, or None for a network without a LiDAR."""
-    return None if lidar[0] is None else _batch(lidar)  # type: ignore[arg-type]
-
-
 class RolloutWorker:
     """One worker process's state: its envs, the policy, Redis and store handles."""
 
-    def __init__(self, opts: WorkerOptions, stop: threading.Event | None = None) -> None:
+    def __init__(
+        self, opts: WorkerOptions, stop: threading.Event | None = None, *, runs: RunStore | None = None
+    ) -> None:
+        """``runs``: the run store to read the run and its policies from, instead of opening ``opts.store`` (a bench
+        passes one over a store that counts the bytes it reads)."""
         self.opts = opts
         self.stop = stop or threading.Event()
         self.bus = Bus.connect(opts.redis_url, opts.run_id)
-        self.runs = RunStore(open_store(opts.store, opts.s3_endpoint))
+        self.runs = runs or RunStore(open_store(opts.store, opts.s3_endpoint))
         self.redis_outage = Outage(f"Redis at {redact(opts.redis_url)}", redis_transient, log, self.stop, opts.outage_s)
         self.store_outage = Outage(f"store {self.runs.store.uri}", is_transient, log, self.stop, opts.outage_s)
         if opts.worker_index is None:
@@ -466,15 +231,16 @@ class RolloutWorker:
             max_rss_mb=peak_rss_mb(),
         )
 
-    def poll_policy(self) -> bool:
+    def poll_policy(self, *, reload: bool = False) -> bool:
         """Switch to a newer policy if one was published. Called between segments (every ~50 ms of work):
-        one GET of the version key is cheaper than keeping a pub/sub connection and just as prompt."""
+        one GET of the version key is cheaper than keeping a pub/sub connection and just as prompt. ``reload`` loads
+        the published version even when it is the one acting (what a bench times as one policy download)."""
         try:
             pv = self.bus.policy()
         except ProtocolError as exc:
             log.warning("ignoring malformed policy version: %s", exc)
             return False
-        if pv is None or pv.version <= self.policy_version:
+        if pv is None or (pv.version <= self.policy_version and not reload):
             return False
         self._load(pv)
         return True

@@ -1,7 +1,8 @@
 """racer's simulator: DeepRacer tracks, the MuJoCo car and world, the camera and the gymnasium env.
 
 The model (``world``, ``physics``, ``actuation``), the task (``task``), the reward-function API (``reward``), the
-env that wires them (``env``), tracks, texture and camera (``track``, ``texture``, ``camera``), the parts of
+env that wires them (``env``), tracks, texture and camera (``track``, ``texture``, ``camera``), what a held-out
+condition does to the frames (``conditions``), the parts of
 ``racer limit`` (``car_limits``, ``raceline``, ``follower``) and of ``racer calibrate`` (``calibration``).
 Importing ``sim`` registers ``Racer-v0`` with gymnasium, so ``gymnasium.make("sim:Racer-v0")`` works.
 See ARCHITECTURE.md.

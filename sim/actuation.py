@@ -5,8 +5,10 @@ DeepRacer's Gazebo car) does not. :class:`Actuation` turns the commanded steerin
 per physics substep, into the servo targets, applying in this order:
 
 - steering: ``clip(gain · cmd, ±max_deg) + offset_deg``, then a dead time ``delay_s``, then a first-order lag
-  ``tau_s``, then understeer ``/ (1 + k · v²)`` with v the speed target below, then the hinge range ±30°;
-- speed: ``gain · cmd``, then a dead time ``delay_s``, then a first-order lag ``tau_s``.
+  ``tau_s``, then a slew rate (60° in ``s_per_60deg`` at most), then understeer ``/ (1 + k · v²)`` with v the
+  speed target below, then the hinge range ±30°;
+- speed: ``gain · cmd``, then a dead time ``delay_s``, then a first-order lag ``tau_s``, then a rate limit (1 m/s
+  in ``s_per_mps`` at most: the largest acceleration).
 
 Dead time is applied to the substep-averaged signal, so a delay that is not a whole number of substeps
 interpolates between them (and a fit sees an error that changes smoothly with it). The lag is the exact
@@ -19,7 +21,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 
 import numpy as np
 
@@ -36,9 +38,11 @@ class ActuationParams:
     steer_max_deg: float
     steer_delay_s: float
     steer_tau_s: float
+    steer_s_per_60deg: float
     speed_gain: float
     speed_delay_s: float
     speed_tau_s: float
+    speed_s_per_mps: float
     understeer_k: float
 
     @classmethod
@@ -50,9 +54,11 @@ class ActuationParams:
             steer_max_deg=cal.value("steering_saturation", "max_deg"),
             steer_delay_s=cal.value("steering_delay", "delay_s"),
             steer_tau_s=cal.value("steering_lag", "tau_s"),
+            steer_s_per_60deg=cal.value("steering_rate", "s_per_60deg"),
             speed_gain=cal.value("speed_gain", "gain"),
             speed_delay_s=cal.value("speed_delay", "delay_s"),
             speed_tau_s=cal.value("speed_lag", "tau_s"),
+            speed_s_per_mps=cal.value("speed_rate", "s_per_mps"),
             understeer_k=cal.value("understeer", "k_s2pm2"),
         )
 
@@ -65,8 +71,13 @@ class ActuationState:
     """Recent inputs of the steering dead time, oldest first, degrees."""
     speed_hist: np.ndarray
     """Recent inputs of the speed dead time, oldest first, m/s."""
+    _: KW_ONLY
     steer_y: float = 0.0
     speed_y: float = 0.0
+    steer_slewed: float = 0.0
+    """The steering rate limiter's output (degrees)."""
+    speed_slewed: float = 0.0
+    """The speed rate limiter's output (m/s)."""
 
 
 def _history_len(delay_s: float, substep_s: float) -> int:
@@ -120,6 +131,21 @@ def _lag(u: np.ndarray, y0: float, tau_s: float, substep_s: float) -> np.ndarray
     return y
 
 
+def _slew(u: np.ndarray, y0: float, unit: float, s_per_unit: float, substep_s: float) -> np.ndarray:
+    """Rate limit: each substep the output moves toward the input by at most ``unit · substep_s / s_per_unit``
+    (the effects give the time per unit: per 60° of steering, per 1 m/s of speed)."""
+    if s_per_unit <= 0:
+        return u
+    step = unit * substep_s / s_per_unit
+    # A loop: each output depends on the last through the clip. A whole trajectory (~800 substeps) takes ~0.2 ms.
+    y = np.empty(len(u))
+    prev = y0
+    for j, x in enumerate(u.tolist()):
+        prev += min(max(x - prev, -step), step)
+        y[j] = prev
+    return y
+
+
 def actuate(
     p: ActuationParams, steer_cmd: np.ndarray, speed_cmd: np.ndarray, state: ActuationState, substep_s: float
 ) -> tuple[np.ndarray, np.ndarray, ActuationState]:
@@ -127,10 +153,16 @@ def actuate(
     s = np.clip(p.steer_gain * np.asarray(steer_cmd, float), -p.steer_max_deg, p.steer_max_deg) + p.steer_offset_deg
     s, steer_hist = _delay(s, state.steer_hist, p.steer_delay_s, substep_s)
     s = _lag(s, state.steer_y, p.steer_tau_s, substep_s)
+    steer_y = float(s[-1])
+    s = _slew(s, state.steer_slewed, 60.0, p.steer_s_per_60deg, substep_s)
     v = p.speed_gain * np.asarray(speed_cmd, float)
     v, speed_hist = _delay(v, state.speed_hist, p.speed_delay_s, substep_s)
     v = _lag(v, state.speed_y, p.speed_tau_s, substep_s)
-    new_state = ActuationState(steer_hist, speed_hist, float(s[-1]), float(v[-1]))
+    speed_y = float(v[-1])
+    v = _slew(v, state.speed_slewed, 1.0, p.speed_s_per_mps, substep_s)
+    new_state = ActuationState(
+        steer_hist, speed_hist, steer_y=steer_y, speed_y=speed_y, steer_slewed=float(s[-1]), speed_slewed=float(v[-1])
+    )
     if p.understeer_k > 0:
         s = s / (1 + p.understeer_k * v * v)
     return np.clip(s, -MAX_STEERING_DEG, MAX_STEERING_DEG), v, new_state

@@ -2,8 +2,8 @@
 
 These are the augmentations of the DeepRacer paper's Table II (Balaji et al., "DeepRacer: Educational
 Autonomous Racing Platform for Experimentation with Sim2Real Reinforcement Learning", 2019): random
-colour (hue, saturation, brightness, contrast), horizontal translation, shadow and salt-and-pepper
-noise. Each is decided independently per frame with its probability from
+colour (hue, saturation, brightness, contrast), horizontal translation, shadow, sharpening and
+salt-and-pepper noise. Each is decided independently per frame with its probability from
 :class:`~common.config.AugmentationConfig`.
 
 The pipeline runs once per env step on a 120x160 frame, so every step is a few whole-array OpenCV or
@@ -31,7 +31,8 @@ def is_identity(cfg: AugmentationConfig) -> bool:
     """Whether :func:`augment_frame` can change nothing but the frame's conversion to gray (every probability 0, or
     a translation of 0 pixels): the caller may then skip it. It draws nothing from the rng either way."""
     translates = cfg.translate_prob > 0 and cfg.translate_max_px > 0
-    return not (cfg.color_prob > 0 or translates or cfg.shadow_prob > 0 or cfg.salt_pepper_prob > 0)
+    sharpens = cfg.sharpen_prob > 0 and cfg.sharpen_max > 0
+    return not (cfg.color_prob > 0 or translates or cfg.shadow_prob > 0 or sharpens or cfg.salt_pepper_prob > 0)
 
 
 def augment_frame(frame: np.ndarray, cfg: AugmentationConfig, rng: np.random.Generator) -> np.ndarray:
@@ -44,7 +45,7 @@ def augment_frame(frame: np.ndarray, cfg: AugmentationConfig, rng: np.random.Gen
 
     Returns:
         A new (H, W) uint8 grayscale frame. Order: colour jitter, grayscale conversion, horizontal
-        translation, shadow, salt-and-pepper. A step whose probability is 0 draws nothing from
+        translation, shadow, sharpening, salt-and-pepper. A step whose probability is 0 draws nothing from
         ``rng``, so with every probability 0 the result is exactly the grayscale of ``frame``.
     """
     _check_frame(frame)
@@ -53,6 +54,8 @@ def augment_frame(frame: np.ndarray, cfg: AugmentationConfig, rng: np.random.Gen
         gray = _translate(gray, cfg.translate_max_px, rng)
     if _happens(cfg.shadow_prob, rng):
         _shadow(gray, cfg.shadow_darkness, rng)
+    if _happens(cfg.sharpen_prob, rng) and cfg.sharpen_max > 0:
+        gray = _sharpen(gray, cfg.sharpen_max * rng.random())
     if _happens(cfg.salt_pepper_prob, rng):
         _salt_pepper(gray, cfg.salt_pepper_amount, rng)
     return gray
@@ -156,6 +159,16 @@ def _shadow(gray: np.ndarray, darkness: float, rng: np.random.Generator) -> None
     # With factor <= 1, round(x * factor) <= x for every integer x: no pixel gets brighter.
     dark = cv2.addWeighted(gray, factor, gray, 0.0, 0.0)
     cv2.copyTo(dark, mask, gray)
+
+
+SHARPEN_SIGMA_PX = 1.0
+"""Blur of the unsharp mask, pixels: edges a pixel or two wide (the borders and dashes at a few metres) get crisper."""
+
+
+def _sharpen(gray: np.ndarray, amount: float) -> np.ndarray:
+    """Unsharp mask: ``gray + amount · (gray - blur(gray))``, saturated to uint8."""
+    blurred = cv2.GaussianBlur(gray, (0, 0), SHARPEN_SIGMA_PX)
+    return cv2.addWeighted(gray, 1.0 + amount, blurred, -amount, 0.0)
 
 
 def _salt_pepper(gray: np.ndarray, amount: float, rng: np.random.Generator) -> None:

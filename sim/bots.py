@@ -100,6 +100,7 @@ class _LaneChangeSpline:
         geom: LaneGeometry,
         start: _LaneSpline,
         end: _LaneSpline,
+        *,
         current_dist: float,
         start_dist: float,
         end_dist: float,
@@ -263,9 +264,9 @@ class BotCars:
                 self._geom,
                 self._lanes[i],
                 self._opposite[i],
-                self.distance(i),
-                self.distance(i, start_time),
-                self.distance(i, end_time),
+                current_dist=self.distance(i),
+                start_dist=self.distance(i, start_time),
+                end_dist=self.distance(i, end_time),
             )
 
     def _poses(self) -> list[WorldObject]:

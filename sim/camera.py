@@ -1,33 +1,27 @@
-"""The car's camera: 160×120 at 15 Hz, two interchangeable paths.
+"""The car's camera: 160×120 at 15 Hz, the fast path and the camera model both paths share.
 
 ``GroundCamera`` is the fast path. The track is flat and the camera is rigid on the car, so every
 pixel's ray hits the ground at a fixed point *in the car's frame*; a frame is then only a rotation
 and translation of those points into the track frame and one bilinear lookup in the track texture
 (OpenCV ``remap``), with a mip level per pixel chosen from its ground footprint so that distant
-lines do not alias. ``MujocoCamera`` renders the same view with MuJoCo's OpenGL renderer (EGL when
-headless); it sees everything in the scene and is the reference the fast path is tested against.
+lines do not alias. ``sim.mujoco_camera.MujocoCamera`` renders the same view with MuJoCo's OpenGL renderer; it is
+the reference the fast path is tested against.
 
-Objects (obstacles, bot cars) are boxes standing on the ground, given as a (K, 6) array ``[x, y, yaw, length,
-width, height]`` in world coordinates. ``GroundCamera.render(pose, boxes=...)`` projects each box's visible faces
-with the camera model and fills them over the ground image, farthest box first, each face shaded by its
-orientation so that edges show; ``MujocoCamera`` sees the boxes the scene's object slots hold
-(``sim.world.set_objects``). ``StereoGroundCamera`` renders DeepRacer's STEREO_CAMERAS: two gray views 6 cm apart,
-stacked as (H, W, 2) with the left camera first.
+Objects (obstacles, bot cars) are boxes drawn over the ground image by ``sim.box_raster``.
+``StereoGroundCamera`` renders DeepRacer's STEREO_CAMERAS: two gray views 6 cm apart, stacked as (H, W, 2) with the
+left camera first.
 """
 
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, replace
 
 import cv2
-import mujoco
 import numpy as np
 
 from common.config import FRAME_HEIGHT, FRAME_WIDTH
-from common.errors import UserError
-from sim._gl import ensure_gl_backend
+from sim.box_raster import Mount, draw_views, prepare_boxes
 from sim.physics import Pose
 from sim.texture import TextureFrame
 
@@ -40,12 +34,6 @@ STEREO_BASELINE_M = 0.06
 y = +0.03 and -0.03 m on the chassis, otherwise at the single camera's pose (xyz 0.091711, ±0.03, 0.080023,
 pitch 0.2618 rad), in deepracer-simapp ``bundle/urdf/deepracer/deepracer_stereo_cam*.urdf`` and
 ``deepracer_single_cam*.urdf``."""
-DEFAULT_BOX_RGB = (123, 97, 79)
-"""Colour of a box without one given: DeepRacer's default obstacle, ``box_obstacle`` (``OBSTACLE_TYPE`` default in
-deepracer-simapp ``bundle/markov/agent_ctrl/obstacles_agent_ctrl.py``), whose material in
-``bundle/models/box_obstacle/model.sdf`` is (0.482, 0.38, 0.309)."""
-NEAR_M = 0.01
-"""Box faces are clipped to points at least this far ahead of the camera (MuJoCo's znear)."""
 
 
 @dataclass(frozen=True)
@@ -252,6 +240,23 @@ def _pixel_maps(
     )
 
 
+def _texture_coords(
+    m: _PixelMaps, f: TextureFrame, pose: Pose, starts: tuple[int, ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each pixel's texture coordinates (u, v) with the car at ``pose``: the maps' ground points, fixed in the car's
+    frame, turned and moved into the texture's. The first ``clip_rows`` rows from each of ``starts`` (where one
+    camera's rows begin) can look beyond the texture and are clamped to it."""
+    c, s = np.float32(math.cos(pose.yaw)), np.float32(math.sin(pose.yaw))
+    tx, ty = np.float32(pose.x - f.x0), np.float32(f.y1 - pose.y)
+    u = c * m.ax - s * m.ay + (m.scale * tx + m.ou)
+    v = (m.scale * ty + m.ov) - (s * m.ax + c * m.ay)
+    k = m.clip_rows
+    for lo in starts:
+        np.clip(u[lo : lo + k], m.umin[lo : lo + k], m.umax[lo : lo + k], out=u[lo : lo + k])
+        np.clip(v[lo : lo + k], m.vmin[lo : lo + k], m.vmax[lo : lo + k], out=v[lo : lo + k])
+    return u, v
+
+
 class GroundCamera:
     """Fast camera: samples the track texture through precomputed per-pixel ground points."""
 
@@ -272,7 +277,7 @@ class GroundCamera:
         """Move the camera on the car (recomputes the per-pixel ground points)."""
         self.spec = spec
         self._maps = _pixel_maps(spec, self.frame, self._gray, self.LEVELS)
-        self._mount = _Mount.of(spec)
+        self._mount = Mount.of(spec, MAX_RANGE_M)
 
     def set_surface(self, texture_rgb: np.ndarray, sky_rgb: tuple[int, int, int]) -> None:
         """Use a new track texture (e.g. with randomized colours)."""
@@ -294,21 +299,16 @@ class GroundCamera:
         """The camera image at ``pose``: (H, W) gray uint8, or (H, W, 3) RGB with ``color``.
 
         ``boxes`` (K, 6) ``[x, y, yaw, length, width, height]`` are drawn over the ground, in ``box_colors``
-        (K, 3) RGB 0-255 (default :data:`DEFAULT_BOX_RGB`); without boxes the image is the ground alone."""
+        (K, 3) RGB 0-255 (default :data:`sim.box_raster.DEFAULT_BOX_RGB`); without boxes the image is the ground
+        alone."""
         out = self._ground(pose, color)
         if boxes is not None and len(boxes):
-            _draw_views([(out, 0.0)], self._mount, pose, _prepare_boxes(boxes, box_colors, gray=not color))
+            draw_views([(out, 0.0)], self._mount, pose, prepare_boxes(boxes, box_colors, gray=not color))
         return out
 
     def _ground(self, pose: Pose, color: bool) -> np.ndarray:
-        m, f = self._maps, self.frame
-        c, s = np.float32(math.cos(pose.yaw)), np.float32(math.sin(pose.yaw))
-        tx, ty = np.float32(pose.x - f.x0), np.float32(f.y1 - pose.y)
-        u = c * m.ax - s * m.ay + (m.scale * tx + m.ou)
-        v = (m.scale * ty + m.ov) - (s * m.ax + c * m.ay)
-        k = m.clip_rows
-        np.clip(u[:k], m.umin[:k], m.umax[:k], out=u[:k])
-        np.clip(v[:k], m.vmin[:k], m.vmax[:k], out=v[:k])
+        m = self._maps
+        u, v = _texture_coords(m, self.frame, pose, starts=(0,))
         if color and self._rgb is None:
             self._rgb = _build_atlas(self._texture_rgb, self._sky_rgb, self.LEVELS)
         atlas = self._rgb if color else self._gray
@@ -363,7 +363,7 @@ class StereoGroundCamera:
             clip_rows=max(a.clip_rows, b.clip_rows),
         )
         self._rows = spec.height - first  # rows of each camera in the stacked maps
-        self._mount = _Mount.of(spec)
+        self._mount = Mount.of(spec, MAX_RANGE_M)
 
     def set_surface(self, texture_rgb: np.ndarray, sky_rgb: tuple[int, int, int]) -> None:
         """Use a new track texture (e.g. with randomized colours)."""
@@ -392,15 +392,8 @@ class StereoGroundCamera:
         """The (left, right) views at ``pose``, each (H, W) gray uint8: views of one buffer that the next call
         overwrites (copy or merge them to keep them). A caller that processes each view on its own (the env's
         augmentations) merges once, at the end, instead of splitting an interleaved frame."""
-        m, f, n = self._maps, self.frame, self._rows
-        c, s = np.float32(math.cos(pose.yaw)), np.float32(math.sin(pose.yaw))
-        tx, ty = np.float32(pose.x - f.x0), np.float32(f.y1 - pose.y)
-        u = c * m.ax - s * m.ay + (m.scale * tx + m.ou)
-        v = (m.scale * ty + m.ov) - (s * m.ax + c * m.ay)
-        k = m.clip_rows
-        for lo in (0, n):  # the first rows of each camera's half can look beyond the texture
-            np.clip(u[lo : lo + k], m.umin[lo : lo + k], m.umax[lo : lo + k], out=u[lo : lo + k])
-            np.clip(v[lo : lo + k], m.vmin[lo : lo + k], m.vmax[lo : lo + k], out=v[lo : lo + k])
+        m, n = self._maps, self._rows
+        u, v = _texture_coords(m, self.frame, pose, starts=(0, n))  # each camera's rows: a half of the maps
         buf, first = self._buf, m.first_row
         buf[:, :first] = self._sky_gray
         image = self._gray.image
@@ -409,288 +402,5 @@ class StereoGroundCamera:
         if boxes is not None and len(boxes):
             half = self.baseline_m / 2  # the cameras sit this far left and right of the rig's centre
             views = [(buf[0], half), (buf[1], -half)]
-            _draw_views(views, self._mount, pose, _prepare_boxes(boxes, box_colors, gray=True))
+            draw_views(views, self._mount, pose, prepare_boxes(boxes, box_colors, gray=True))
         return buf[0], buf[1]
-
-
-# --- boxes --------------------------------------------------------------------------------------------------
-
-_LIGHT = (math.cos(math.radians(30)), math.sin(math.radians(30)))
-"""Horizontal direction the side faces are lit from (world frame): a face turned towards it is brighter."""
-_TOP_SHADE = 1.0
-_SIDE_SHADE = (0.8, 0.15)  # a side face's shade is a + b * cos(angle between its normal and the light)
-# Box corners: bottom (z = 0) 0-3 and top 4-7, at (+l, +w), (-l, +w), (-l, -w), (+l, -w) in the box frame.
-# Faces: top, +x, +y, -x, -y (the bottom is on the ground, never seen), corner indices in order around each.
-_FACE_CORNERS = ((4, 5, 6, 7), (0, 3, 7, 4), (1, 0, 4, 5), (2, 1, 5, 6), (3, 2, 6, 7))
-_GRAY_WEIGHTS = (0.299, 0.587, 0.114)  # OpenCV's RGB2GRAY
-_SUBPIXEL_BITS = 4
-_FAR_PX = 1e5  # projected coordinates are clamped to this (the polygon is clipped to the image anyway)
-
-
-@dataclass(frozen=True)
-class _Mount:
-    """What box drawing needs of a :class:`CameraSpec`, computed once per spec."""
-
-    position: np.ndarray  # (3,) car frame, z above the ground
-    rotation: np.ndarray  # (3, 3) columns forward, left, up in the car frame
-    focal: float
-    cx: float
-    cy: float
-    width: int
-    height: int
-    tan_h: float  # tangent of half the horizontal / vertical field of view, and 1 / their cosines
-    sec_h: float
-    tan_v: float
-    sec_v: float
-
-    @classmethod
-    def of(cls, spec: CameraSpec) -> _Mount:
-        tan_h = (spec.width / 2) / spec.focal_px
-        tan_v = (spec.height / 2) / spec.focal_px
-        return cls(
-            spec.position,
-            spec.rotation(),
-            spec.focal_px,
-            (spec.width - 1) / 2,
-            (spec.height - 1) / 2,
-            spec.width,
-            spec.height,
-            tan_h,
-            math.hypot(1.0, tan_h),
-            tan_v,
-            math.hypot(1.0, tan_v),
-        )
-
-    def world(self, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
-        """Camera centre (3,) and rotation (3×3, columns forward, left, up) in the world, car at ``pose``."""
-        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-        car = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        return np.array([pose.x, pose.y, 0.0]) + car @ self.position, car @ self.rotation
-
-
-@dataclass(frozen=True)
-class _Boxes:
-    """Boxes as Python floats and their base colours (gray level or RGB tuple per box)."""
-
-    rows: list[list[float]]  # [x, y, yaw, length, width, height]
-    colors: list
-
-
-def _prepare_boxes(boxes: np.ndarray, box_colors: np.ndarray | None, gray: bool) -> _Boxes:
-    array = np.asarray(boxes, np.float64).reshape(-1, 6)
-    k = len(array)
-    if box_colors is None:
-        rgb = [DEFAULT_BOX_RGB] * k
-    else:
-        rgb = np.broadcast_to(np.asarray(box_colors, np.float64).reshape(-1, 3), (k, 3)).tolist()
-    colors = [sum(w * v for w, v in zip(_GRAY_WEIGHTS, col, strict=True)) for col in rgb] if gray else rgb
-    return _Boxes(array.tolist(), colors)
-
-
-def draw_boxes(
-    image: np.ndarray,
-    spec: CameraSpec,
-    pose: Pose,
-    boxes: np.ndarray,
-    box_colors: np.ndarray | None = None,
-) -> None:
-    """Draw ``boxes`` ((K, 6) ``[x, y, yaw, length, width, height]``) into ``image`` ((H, W) gray or (H, W, 3)
-    RGB, already holding the ground) as ``spec``'s camera on a car at ``pose`` sees them.
-
-    Painter's algorithm: boxes far to near (horizontal distance to their centre), each box's faces that turn
-    towards the camera (a box's front faces never overlap each other), clipped to :data:`NEAR_M` ahead of the
-    camera, projected and filled with ``cv2.fillConvexPoly`` at 1/16 pixel precision. Boxes are vertical prisms
-    on flat ground, so the ground never hides them and they hide the ground behind them. The far-to-near order
-    is exact for boxes whose footprints are not long and close together. Each face is the box's colour times a
-    shade: 1 on top, 0.65-0.95 on the sides by how they face a fixed light, so that edges show."""
-    prepared = _prepare_boxes(boxes, box_colors, gray=image.ndim == 2)
-    _draw_views([(image, 0.0)], _Mount.of(spec), pose, prepared)
-
-
-def _draw_views(views: list[tuple[np.ndarray, float]], mount: _Mount, pose: Pose, b: _Boxes) -> None:
-    """Draw the boxes into each ``(image, left_m)`` view: the camera of ``mount`` moved ``left_m`` along the car's
-    left axis (:func:`stereo_specs`), so that a stereo pair shares the culling and the corners.
-
-    The geometry is plain Python arithmetic: for the few boxes of a scene it is several times faster than numpy's
-    per-call overhead on arrays of eight corners."""
-    centre, rot = mount.world(pose)
-    (fx, lx, ux), (fy, ly, uy), (fz, lz, uz) = rot.tolist()
-    ccx, ccy, ccz = centre.tolist()
-    spread = max(abs(off) for _, off in views)
-    # Cull with each box's bounding sphere: behind the cameras, beyond the sky, outside the frustum.
-    order = []
-    for k, (x, y, _yaw, length, width, height) in enumerate(b.rows):
-        dx, dy, dz = x - ccx, y - ccy, height / 2 - ccz
-        d2 = dx * dx + dy * dy
-        if d2 > MAX_RANGE_M * MAX_RANGE_M:
-            continue
-        r = 0.5 * math.sqrt(length * length + width * width + height * height) + spread
-        depth = dx * fx + dy * fy + dz * fz
-        if depth < -r:
-            continue
-        left, up = dx * lx + dy * ly + dz * lz, dx * ux + dy * uy + dz * uz
-        if depth * mount.tan_h - abs(left) < -r * mount.sec_h or depth * mount.tan_v - abs(up) < -r * mount.sec_v:
-            continue
-        order.append((-d2, k))
-    if not order:
-        return
-    order.sort()
-    a_side, b_side = _SIDE_SHADE
-    focal, scale = mount.focal, float(1 << _SUBPIXEL_BITS)
-    pcx_s, pcy_s = mount.cx * scale, mount.cy * scale  # fixed point; truncation errs by under 1/16 pixel
-    c_yaw, s_yaw = math.cos(pose.yaw), math.sin(pose.yaw)
-    r1 = mount.rotation[1].tolist()  # the car's left axis in camera coordinates (a view's offset direction)
-    boxes = []
-    for _, k in order:
-        x, y, yaw, length, width, height = b.rows[k]
-        c, s = math.cos(yaw), math.sin(yaw)
-        ex, ey, hl, hw = x - ccx, y - ccy, length / 2, width / 2
-        # Camera coordinates of the 8 corners (bottom 0-3 at (+l, +w), (-l, +w), (-l, -w), (+l, -w), top 4-7):
-        # origin + sx * along-x + sy * along-y (+ the height for the top), for each of forward, left and up.
-        cam = []
-        for ax, ay, az in ((fx, fy, fz), (lx, ly, lz), (ux, uy, uz)):
-            o = ax * ex + ay * ey - az * ccz
-            p, q = hl * (ax * c + ay * s), hw * (ay * c - ax * s)
-            bottom = (o + p + q, o - p + q, o - p - q, o + p - q)
-            top = az * height
-            cam.append(bottom + tuple(v + top for v in bottom))
-        lit_x, lit_y = c * _LIGHT[0] + s * _LIGHT[1], c * _LIGHT[1] - s * _LIGHT[0]  # light · box axes
-        boxes.append((k, x, y, c, s, hl, hw, height, cam, lit_x, lit_y))
-    fs = focal * scale
-    for image, off in views:
-        gray = image.ndim == 2
-        vx, vy = ccx - off * s_yaw, ccy + off * c_yaw  # this view's camera
-        o_f, o_l, o_u = off * r1[0], off * r1[1], off * r1[2]
-        for k, x, y, c, s, hl, hw, height, (cf, cl, cu), lit_x, lit_y in boxes:
-            # The camera in the box's frame: a side face turns towards it when it is beyond the face's plane.
-            bx, by = (vx - x) * c + (vy - y) * s, (vy - y) * c - (vx - x) * s
-            faces = [(0, _TOP_SHADE)] if ccz > height else []
-            if bx > hl:
-                faces.append((1, a_side + b_side * lit_x))
-            elif bx < -hl:
-                faces.append((3, a_side - b_side * lit_x))
-            if by > hw:
-                faces.append((2, a_side + b_side * lit_y))
-            elif by < -hw:
-                faces.append((4, a_side - b_side * lit_y))
-            if not faces:
-                continue
-            base = b.colors[k]
-            if off:
-                cf, cl, cu = [v - o_f for v in cf], [v - o_l for v in cl], [v - o_u for v in cu]
-            if min(cf) >= NEAR_M:  # all corners ahead: project them, then fill each face's slice
-                px = [
-                    (int(pcx_s - lv * fs / d), int(pcy_s - uv * fs / d)) for d, lv, uv in zip(cf, cl, cu, strict=True)
-                ]
-                pts = np.array([px[i] for face, _ in faces for i in _FACE_CORNERS[face]], np.int32)
-                for j, (_, shade) in enumerate(faces):
-                    color = base * shade if gray else (base[0] * shade, base[1] * shade, base[2] * shade)
-                    cv2.fillConvexPoly(image, pts[4 * j : 4 * j + 4], color, cv2.LINE_8, _SUBPIXEL_BITS)
-                continue
-            for face, shade in faces:  # some corners behind the camera: clip each face to the near plane
-                poly = _clip_near(np.array([(cf[i], cl[i], cu[i]) for i in _FACE_CORNERS[face]]))
-                if len(poly) < 3:
-                    continue
-                inv = focal / poly[:, 0]
-                proj = np.column_stack([mount.cx - poly[:, 1] * inv, mount.cy - poly[:, 2] * inv])
-                color = base * shade if gray else (base[0] * shade, base[1] * shade, base[2] * shade)
-                pts = (np.clip(proj, -_FAR_PX, _FAR_PX) * scale).astype(np.int32)
-                cv2.fillConvexPoly(image, pts, color, cv2.LINE_8, _SUBPIXEL_BITS)
-
-
-def _clip_near(poly: np.ndarray) -> np.ndarray:
-    """The part of a convex polygon ((N, 3) camera coordinates, forward first) at least NEAR_M ahead."""
-    out = []
-    n = len(poly)
-    for i in range(n):
-        a, b = poly[i], poly[(i + 1) % n]
-        a_in, b_in = a[0] >= NEAR_M, b[0] >= NEAR_M
-        if a_in:
-            out.append(a)
-        if a_in != b_in:
-            t = (NEAR_M - a[0]) / (b[0] - a[0])
-            out.append(a + t * (b - a))
-    return np.array(out).reshape(-1, 3)
-
-
-class RenderError(UserError, RuntimeError):
-    """MuJoCo's renderer could not start (no OpenGL backend)."""
-
-
-def _quat_from_spec(spec: CameraSpec) -> np.ndarray:
-    # MuJoCo cameras look along their -z with +x right and +y up.
-    rot = spec.rotation()
-    fwd, left, up = rot[:, 0], rot[:, 1], rot[:, 2]
-    mat = np.stack([-left, up, -fwd], axis=1)
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, mat.flatten())
-    return quat
-
-
-class MujocoCamera:
-    """Reference camera: MuJoCo's own OpenGL render of the scene from the car's camera."""
-
-    def __init__(
-        self,
-        model: mujoco.MjModel,
-        data: mujoco.MjData,
-        spec: CameraSpec | None = None,
-        show_car: bool = False,
-    ) -> None:
-        ensure_gl_backend()
-        self.model, self.data = model, data
-        self._cam = model.camera("front").id
-        self.set_spec(spec or CameraSpec())
-        try:
-            self._renderer = mujoco.Renderer(model, self.spec.height, self.spec.width)
-        except Exception as exc:
-            raise RenderError(
-                f"MuJoCo could not open an OpenGL context (MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}): {exc}. "
-                "Install Mesa's EGL (libegl1, libgl1-mesa-dri) or set MUJOCO_GL=osmesa; "
-                "the default camera='ground' needs no OpenGL."
-            ) from None
-        self._opt = mujoco.MjvOption()
-        self._opt.geomgroup[2] = int(show_car)  # the car's own body: DeepRacer's camera barely sees it
-        self._opt.geomgroup[3] = 0  # collision spheres
-        self._opt.sitegroup[:] = 0
-
-    def set_spec(self, spec: CameraSpec) -> None:
-        """Move the camera on the car."""
-        self.spec = spec
-        base = np.array([0.0, 0.0, spec.base_height_m])
-        self.model.cam_pos[self._cam] = spec.position - base
-        self.model.cam_quat[self._cam] = _quat_from_spec(spec)
-        self.model.cam_fovy[self._cam] = spec.fovy_deg
-
-    def set_surface(self, texture_rgb: np.ndarray, sky_rgb: tuple[int, int, int]) -> None:
-        """Replace the ground texture (same size) and re-upload it to the GPU (colour randomization)."""
-        tex = self.model.texture("track").id
-        h, w = int(self.model.tex_height[tex]), int(self.model.tex_width[tex])
-        if texture_rgb.shape[:2] != (h, w):
-            raise ValueError(f"texture is {texture_rgb.shape[:2]}, the model's is {(h, w)}")
-        adr = int(self.model.tex_adr[tex])
-        # Rows are stored as in the PNG the model was built from, which was written from this same layout.
-        self.model.tex_data[adr : adr + h * w * 3] = texture_rgb.reshape(-1)
-        sky = self.model.texture("sky").id
-        sky_adr, sky_n = int(self.model.tex_adr[sky]), int(self.model.tex_height[sky] * self.model.tex_width[sky])
-        self.model.tex_data[sky_adr : sky_adr + sky_n * 3] = np.tile(np.asarray(sky_rgb, np.uint8), sky_n)
-        for t in (tex, sky):
-            mujoco.mjr_uploadTexture(self.model, self._renderer._mjr_context, t)
-
-    def render(
-        self,
-        pose: Pose | None = None,
-        color: bool = False,
-        boxes: np.ndarray | None = None,
-        box_colors: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """The camera image for the current physics state (``pose`` is ignored: the data holds it). ``boxes`` and
-        ``box_colors`` are ignored too: the scene's object slots are drawn (``sim.world.set_objects``)."""
-        mujoco.mj_camlight(self.model, self.data)  # camera pose from the current kinematics
-        self._renderer.update_scene(self.data, camera=self._cam, scene_option=self._opt)
-        rgb = self._renderer.render()
-        return rgb if color else cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-
-    def close(self) -> None:
-        """Release the OpenGL context."""
-        self._renderer.close()

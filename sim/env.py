@@ -9,6 +9,7 @@ lap complete, immobilized, reversed) apart from ``truncated`` (time limit).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 from pathlib import Path
 from typing import Any
@@ -24,14 +25,16 @@ from common.action_space import (
     default_action_space,
     load_action_space,
 )
-from common.config import FRAME_HEIGHT, FRAME_WIDTH, EnvConfig
+from common.config import FRAME_HEIGHT, FRAME_WIDTH, EnvConfig, WorldCondition
 from common.defaults import DEFAULT_TRACK
 from common.errors import UserError
 from common.sensors import CAMERA_KEY, LIDAR_KEY, ObsSpec, lidar_from_ranges, observation_spec
 from common.simtrace import OBSTACLE_COLUMN
 from sim.augment import augment_frame, is_identity, needs_color
-from sim.camera import CameraSpec, GroundCamera, MujocoCamera, StereoGroundCamera
+from sim.camera import CameraSpec, GroundCamera, StereoGroundCamera
+from sim.conditions import FrameCondition
 from sim.lidar import Lidar, scan_due
+from sim.mujoco_camera import MujocoCamera
 from sim.obstacles import WorldObject, as_boxes
 from sim.physics import CarPhysics, Pose
 from sim.race_rules import RaceObjects, reset_pose, start_pose
@@ -95,14 +98,15 @@ class RacerEnv(gym.Env):
         cfg = self.config
         self.frame = TextureFrame.for_track(self.track, cfg.texture_ppm)
         self._layers = draw_layers(self.track, self.frame)
-        self.palette: Palette = DEEPRACER_PALETTE
+        self.palette: Palette = _conditioned(DEEPRACER_PALETTE, cfg.condition)
         self.texture = colorize(self._layers, self.palette)
         mujoco_cam = cfg.camera == "mujoco"
         slots = self.race.slots
         self.model = build_model(self.frame, self.texture if mujoco_cam else None, self.palette.sky, object_slots=slots)
         self.physics = CarPhysics(self.model)
         self.physics.set_calibration(cfg.car)
-        self.camera_spec = CameraSpec()
+        self.camera_spec = CameraSpec(pitch_deg=CameraSpec().pitch_deg + cfg.condition.camera_pitch_deg)
+        self._frame_condition = FrameCondition(cfg.condition, OBS_SHAPE[:2])
         stereo = self.obs_spec.frame_channels == 2
         if mujoco_cam and stereo:
             raise UserError("camera 'mujoco' renders one camera, not STEREO_CAMERAS: use camera 'ground'")
@@ -158,13 +162,13 @@ class RacerEnv(gym.Env):
             # _get_car_start_model_state); an evaluation (a pinned start) starts on the centre line regardless.
             pose = start_pose(self.track, reverse, self.task.start_distance(index, reverse), self.objects)
         self.physics.reset(pose)
-        self._place_objects()
+        self.place_objects()
         self.task.begin(index, reverse)
         self._command = (0.0, 0.0)
         wheels = self.physics.wheel_positions()
-        self._last = self.task.observe(pose, wheels, True, 0.0, self._command, False, self.objects)
+        self._last = self.task.observe(pose, wheels, True, 0.0, self._command, count_step=False, objects=self.objects)
         self._episodes += 1
-        return self._observe(), self._info(self._last, 0.0)
+        return self.observe(), self._info(self._last, 0.0)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Apply one action for 1/15 s and return (obs, reward, terminated, truncated, info)."""
@@ -174,14 +178,12 @@ class RacerEnv(gym.Env):
         requested = self.actions.values(action)
         command = clip_command(*requested)
         self._command = command
-        self.physics.command(*self._noisy(command))
+        steer, speed = self._noisy(command)
+        cap = self.config.condition.speed_cap_mps
+        self.physics.command(steer, speed if cap is None else min(speed, cap))
         self.physics.step()
         ph = self.physics
-        self.objects = self.race.step()
-        self._place_objects()
-        crashed = bool(self.objects) and self.race.crashed(
-            ph.pose, self._last.params["progress"], self.task.start_fraction
-        )
+        crashed = self.move_objects()
         sim_time = ph.time + self._pause_s
         result = self.task.observe(
             ph.pose, ph.wheel_positions(), ph.upright, sim_time, requested, objects=self.objects, crashed=crashed
@@ -195,7 +197,7 @@ class RacerEnv(gym.Env):
         info = self._info(result, reward, status)
         if pause:
             info["pause_duration"] = pause
-        return self._observe(), reward, terminated, truncated, info
+        return self.observe(), reward, terminated, truncated, info
 
     def render(self) -> np.ndarray | None:
         """Top-down RGB view of the track with the car (``render_mode="rgb_array"``)."""
@@ -237,7 +239,8 @@ class RacerEnv(gym.Env):
         if dr.camera_jitter_m or dr.camera_jitter_deg:
             self.camera.set_spec(self.camera_spec.jittered(rng, dr.camera_jitter_m, dr.camera_jitter_deg))
         if dr.track_color or dr.texture:
-            self.palette = random_palette(rng, dr.track_color) if dr.track_color else DEEPRACER_PALETTE
+            palette = random_palette(rng, dr.track_color) if dr.track_color else DEEPRACER_PALETTE
+            self.palette = _conditioned(palette, self.config.condition)  # a condition's colours are fixed
             texture = colorize(self._layers, self.palette)
             if dr.texture:
                 texture = add_noise_texture(texture, dr.texture, rng)
@@ -248,6 +251,7 @@ class RacerEnv(gym.Env):
             # a policy must not learn to avoid one colour.
             self._box_colors = rng.integers(30, 226, (self.race.slots, 3)).astype(np.uint8)
         self._gain = _lighting_gain(rng, dr.lighting) if dr.lighting else None
+        self._frame_condition.begin(rng)
 
     def _penalty_reset(self, result: StepResult) -> float:
         """An evaluation reset (simapp ``RolloutCtrl._judge_action_at_run_phase`` and
@@ -283,20 +287,30 @@ class RacerEnv(gym.Env):
         self.physics.reset(pose)
         penalty = by_status[result.status]
         self.objects = self.race.pause(penalty)
-        self._place_objects()
+        self.place_objects()
         self.task.relocate(pose)
         self._pause_s += penalty
         return max(penalty, 1e-9)  # a 0 s penalty still resets
 
-    def _place_objects(self) -> None:
+    # --- the parts of a step, public so that a bench or a test can run (and time) each alone ----------------
+    def move_objects(self) -> bool:
+        """The race's objects one step on, placed in the scene; True if the car now touches one."""
+        self.objects = self.race.step()
+        self.place_objects()
+        pose, progress = self.physics.pose, self._last.params["progress"]
+        return bool(self.objects) and self.race.crashed(pose, progress, self.task.start_fraction)
+
+    def place_objects(self) -> None:
         """Move the MuJoCo scene's object slots to this step's objects (after every physics reset too: it
         puts the slots back where they were compiled)."""
         if self._slot_geoms is not None:
             set_objects(self.model, self.physics.data, as_boxes(self.objects), slots=self._slot_geoms)
 
-    def _observe(self) -> np.ndarray | dict[str, np.ndarray]:
+    def observe(self) -> np.ndarray | dict[str, np.ndarray]:
+        """The observation at the car's pose now: the camera frame, and the LiDAR vector where the sensors have one
+        (scanned again when due, else the last scan)."""
         pose = self.physics.pose
-        frame = self._camera_frame(pose)
+        frame = self.camera_frame(pose)
         if self.lidar is None:
             return frame
         if self._lidar_obs is None or scan_due(self.task.steps):
@@ -304,7 +318,7 @@ class RacerEnv(gym.Env):
             self._lidar_obs = lidar_from_ranges(self.obs_spec.lidar.name, ranges)
         return {CAMERA_KEY: frame, LIDAR_KEY: self._lidar_obs.copy()}
 
-    def _camera_frame(self, pose) -> np.ndarray:
+    def camera_frame(self, pose: Pose) -> np.ndarray:
         """(H, W, 1) or, stereo, (H, W, 2) uint8: the render with this step's objects, the episode's lighting and
         the frame augmentations (the same draw for both views of a stereo pair)."""
         aug = self.config.randomization.augment
@@ -317,14 +331,17 @@ class RacerEnv(gym.Env):
                 views = tuple(cv2.convertScaleAbs(v.astype(np.float32) * self._gain) for v in views)
             if not is_identity(aug):
                 views = tuple(augment_frame(v, aug, np.random.default_rng(seed)) for v in views)
-            return cv2.merge(views)
+            pair = cv2.merge(views)
+            return self._frame_condition.apply(pair, self.np_random) if self._frame_condition.active else pair
         frame = self.camera.render(pose, color=needs_color(aug), boxes=boxes, box_colors=self._box_colors)
         if self._gain is not None:
             gain = self._gain[..., None] if frame.ndim == 3 else self._gain
             frame = cv2.convertScaleAbs(frame.astype(np.float32) * gain)
-        if frame.ndim == 2 and is_identity(aug):
-            return frame[..., None]  # a fresh array each step: nothing to copy
-        return augment_frame(frame, aug, self.np_random)[..., None]
+        if not (frame.ndim == 2 and is_identity(aug)):
+            frame = augment_frame(frame, aug, self.np_random)
+        if self._frame_condition.active:
+            frame = self._frame_condition.apply(frame, self.np_random)
+        return frame[..., None]  # a fresh array each step: nothing to copy
 
     def _info(self, result: StepResult, reward: float, status: str | None = None) -> dict:
         extra = {OBSTACLE_COLUMN: self.race.crash_count} if self.race.slots else {}
@@ -337,6 +354,12 @@ class RacerEnv(gym.Env):
             "command": self._command,
             "pose": self.physics.pose,
         }
+
+
+def _conditioned(palette: Palette, condition: WorldCondition) -> Palette:
+    """``palette`` with the colours a held-out condition fixes."""
+    fixed = {k: getattr(condition, k) for k in ("road", "border", "center", "background", "sky")}
+    return dataclasses.replace(palette, **{k: tuple(v) for k, v in fixed.items() if v is not None})
 
 
 def _lighting_gain(rng: np.random.Generator, strength: float) -> np.ndarray:

@@ -27,16 +27,12 @@ period) and asks for the speed that takes the car's speed servo, a first-order l
 (``CarLimits.speed_tau_s``), from its speed to that one in that period (:func:`lead_speed`), divided by the car's
 speed-per-command ratio (its wheels slip slightly) and clipped to its commands.
 
-Measured on 11 DeepRacer loops (docs/racing.md, ``racer limit``, 2026-11-28 evening, one AMD EPYC): the default
-car is driven within 1.9 % of its limit on each (mean +1.2 %), the Gazebo car within 5 % on 10 (-1.4 % .. +3.8 %)
-and 5.9 % over on AWS_track (mean +1.0 %). Before (the speed read 0.12 s ahead of the nearest line point, v
-interpolated linearly): the default car within 5 % on 9 (mean +3.1 %), the Gazebo car on 11 (mean +1.4 %; AWS_track
-+4.2 % at the third try). Its lap at the limit is chaotic: the CPUs' last-digit differences in the line make
-different laps. Driven at its limit a car may still leave the track in one bend and not on a second try a little
-slower there: ``drive_line`` slows the stretch before the place where a try left the track, or left the line's
-corridor, and tries again (:data:`PACE_STEP`), so the rest of the lap keeps the profile's speeds, and reports the
-fastest lap; a retry replays the earlier try's commands up to where its slower stretch is first read
-(:meth:`TryRecord.same_steps`)."""
+How close it drives each car to its limit on DeepRacer's loops: docs/racing.md ("Current figures"). Its lap at
+the limit is chaotic: the CPUs' last-digit differences in the line make different laps. Driven at its limit a car
+may still leave the track in one bend and not on a second try a little slower there: ``drive_line`` slows the
+stretch before the place where a try left the track, or left the line's corridor, and tries again
+(:data:`PACE_STEP`), so the rest of the lap keeps the profile's speeds, and reports the fastest lap; a retry replays
+the earlier try's commands up to where its slower stretch is first read (:meth:`TryRecord.same_steps`)."""
 
 from __future__ import annotations
 
@@ -44,7 +40,7 @@ import bisect
 import json
 import math
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, dataclass, field
 from functools import cache
 from pathlib import Path
 
@@ -61,11 +57,8 @@ from sim.world import CONTROL_HZ
 PERIOD_S = 1.0 / CONTROL_HZ
 SPEED_LEAD_S = PERIOD_S
 """How far ahead (in time at the current speed) the speed command reads the profile, s: one control period, over
-which the command acts. 0.12 s before 2026-11-28 (late evening): the default car, whose servo follows in 0.06 s,
-reached each braking speed early and came into the bends under the profile. Measured with the rest as now (no
-corridor retries) on the 11 loops: 0.12 s took the default car a mean +2.3 % over its limit (+5.0 % at most)
-against +1.2 % (+2.2 %); the Gazebo car (0.17 s) +0.8 % against +1.2 %, 10 of 11 within 5 % with either (AWS_track
-+6.5 % and +5.9 %)."""
+which the command acts. One lead for every car, not one fitted per car: a longer lead brings a car whose speed
+servo follows quickly to each braking speed early, and into the bends under the profile."""
 PLAN_ANGLES = np.linspace(-MAX_STEERING_DEG, MAX_STEERING_DEG, 13)
 """Steering commands the kinematic plan combines, degrees."""
 HORIZON_LAG_FACTOR, HORIZON_EXTRA_S = 2.0, 0.5
@@ -74,10 +67,8 @@ CHECK_OFFSETS_DEG = (-2.0, 0.0, 2.0)
 """Offsets added to each piece of the best plan for the simulator check, degrees."""
 LAGGING_CHECK_OFFSETS_DEG = (-3.0, 0.0, 3.0)
 """The offsets for a car whose steering lags more than :data:`LAGGING_TAU_S`. Its kinematic plan is further off
-(its wheels reach a command late, and it slides at its limit), and the wider check keeps it on the line: measured on
-the eleven loops (2026-11-27, docs/racing.md), ±3° drove DeepRacer's Gazebo car within 5 % of its limit on 9 with
-no retry, ±2° on 7 with retries on 4; ±3° took the default car, whose wheels follow at once, 8.4 % over its limit
-on Bowtie_track after 5 tries (±2°: 4.3 %, one try)."""
+(its wheels reach a command late, and it slides at its limit), and the wider check keeps it on the line; a car
+whose wheels follow at once drives worse with it, so it gets :data:`CHECK_OFFSETS_DEG`."""
 LAGGING_TAU_S = 0.25
 """Steering time constant above which a car gets :data:`LAGGING_CHECK_OFFSETS_DEG`, s (the default car's is
 0.04 s, the ROS2 Gazebo car's 0.16 s, the ROS1 Gazebo car's 0.50 s)."""
@@ -342,14 +333,11 @@ def lead_speed(speed: float, target: float, tau_s: float, lead_s: float) -> floa
     command as a first-order lag of time constant ``tau_s`` goes from ``speed`` to ``target`` in ``lead_s``:
     ``speed + (target - speed) / (1 - exp(-lead_s / tau_s))`` (``target`` itself for a servo without lag).
 
-    Why not the profile's own speed, nor full command or brake beyond a small band (racer before 2026-11-28): asked
-    for the profile's speed, the Gazebo car's servo (0.17 s) lags it, and lost 0.36 s of a 7.6 s limit in the first
-    2 m of reInvent2019_track; switched between full command and the lowest one at 0.1 m/s from the profile, it
-    kept braking for a servo time constant after each switch and fell 0.4-0.6 m/s below the profile out of
-    Vegas_track's bends. A large gap still saturates at full command or brake, the rates the profile was built on;
-    but where the profile accelerates at the car's full-command rate out of a bend, this asks for less than full
-    command, and the Gazebo car falls 0.3-0.5 m/s behind the profile there (docs/racing.md: full command there
-    drove that car under its limit, which was not kept)."""
+    Why not the profile's own speed: a lagging servo asked for it falls behind the profile, and switching between
+    full command and brake near the profile keeps it braking for a time constant after each switch. A large gap
+    still saturates at full command or brake, the rates the profile was built on; where the profile accelerates at
+    the car's full-command rate out of a bend, this asks for less than full command, so a lagging car falls a
+    little behind the profile there."""
     if tau_s <= 0.0:
         return target
     return speed + (target - speed) / (1.0 - math.exp(-lead_s / tau_s))
@@ -387,6 +375,7 @@ class DrivenLap:
     """Progress reached, %."""
     path: np.ndarray
     """(K, 2) positions of the car's front point (DeepRacer's x, y), m."""
+    _: KW_ONLY
     pace: float = 1.0
     """The lowest fraction of the profile's speeds commanded anywhere on the lap (1: the profile throughout)."""
     slowed_m: float = 0.0
@@ -436,7 +425,9 @@ def drive_line(
         if best is not None:
             lap, pace = best
         slowed = float(line.ds[pace < 1.0].sum())
-        return DrivenLap(lap.status, lap.lap_time, lap.progress, lap.path, float(pace.min()), slowed, tries)
+        return DrivenLap(
+            lap.status, lap.lap_time, lap.progress, lap.path, pace=float(pace.min()), slowed_m=slowed, tries=tries
+        )
     finally:
         env.close()
 
@@ -526,10 +517,8 @@ def _drive(env, follower: LineFollower, replay: TryRecord | None = None) -> tupl
 CORRIDOR_TRIES = 3
 """Laps tried again after a completed lap whose car left the line's corridor. The limit is the time of a line
 inside that corridor; a car that left it did not drive that line, most often because it came into a bend too fast
-to turn on it (with the speed read 0.12 s ahead, the Gazebo car came into an AWS_track hairpin over the profile at
-the lowest speed command and left the corridor by 2 cm): slowing the stretch before that place may give a faster
-lap (measured on the 22 loops, 2026-11-28: Bowtie_track's Gazebo lap +3.6 % to +1.6 % over its limit, AWS_track's
-default one +2.2 % to +1.8 %; no lap slower, since the fastest is kept)."""
+to turn on it: slowing the stretch before that place may give a faster lap, and never a slower one, since the
+fastest lap is kept."""
 
 
 def _outside_corridor(line: RacingLine, centres: np.ndarray) -> np.ndarray | None:

@@ -44,8 +44,9 @@ computed in closed form (ray against oriented box), the reference the tests hold
 
 The env calls, each step after the physics (and after :func:`sim.world.set_objects` when objects moved)::
 
-    obs = lidar.observe(physics.pose, np_random)      # LIDAR: (64,) float32 in [0.15, 1.0]
-    obs = sector_lidar.observe(physics.pose, np_random)  # SECTOR_LIDAR: (8,) float32 of 0.0 / 1.0
+    ranges = lidar.scan(physics.pose, np_random)  # one Lidar for either sensor
+    obs = lidar_from_ranges(obs_spec.lidar.name, ranges)
+    # LIDAR: (64,) float32 in [0.15, 1.0]; SECTOR_LIDAR: (8,) float32 of 0.0 / 1.0
 
 DeepRacer's lidar publishes at 10 Hz and its agent takes the latest scan without waiting
 (``markov/sensors/sensors_rollout.py: Lidar.get_state``: a non-blocking get from a buffer that is not cleared on
@@ -62,7 +63,7 @@ import mujoco
 import numpy as np
 
 from common.defaults import DEFAULT_TRACK
-from common.sensors import LIDAR, LIDAR_MAX_RANGE_M, LIDAR_MIN_RANGE_M, LIDAR_SAMPLES, SECTOR_LIDAR, lidar_from_ranges
+from common.sensors import LIDAR, LIDAR_MAX_RANGE_M, LIDAR_MIN_RANGE_M, LIDAR_SAMPLES, lidar_from_ranges
 from sim.physics import Pose
 from sim.world import CONTROL_HZ, OBJECT_GEOM_GROUP
 
@@ -169,14 +170,6 @@ class Lidar:
     def observe(self, pose: Pose, rng: np.random.Generator | None = None) -> np.ndarray:
         """The LIDAR observation: (64,) float32 in [0.15, 1.0] (``common/sensors.py: lidar_from_ranges``)."""
         return lidar_from_ranges(LIDAR, self.scan(pose, rng))
-
-
-class SectorLidar(Lidar):
-    """DeepRacer's SECTOR_LIDAR: (8,) float32, 1.0 where a sector's nearest range is below 0.5 m (the filter is
-    ``common/sensors.py: lidar_from_ranges``, the one owner of the sensors' input filters)."""
-
-    def observe(self, pose: Pose, rng: np.random.Generator | None = None) -> np.ndarray:
-        return lidar_from_ranges(SECTOR_LIDAR, self.scan(pose, rng))
 
 
 def _finish(dist: np.ndarray, spec: LidarSpec, rng: np.random.Generator | None) -> np.ndarray:

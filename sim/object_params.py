@@ -1,8 +1,8 @@
 """The reward function's object params: simapp ``track_geom/track_data.py: TrackData.get_object_reward_params``.
 
-:func:`object_params` with objects, :func:`empty_object_params` without (a time trial); ``object_in_camera`` uses
-the simapp's camera frustum (:func:`in_camera_view`, ``markov/cameras/frustum.py``). ``is_crashed`` comes from the
-crash rule (``sim/race_rules.py``).
+:func:`object_params` with objects (without, the task's params keep the simapp's defaults: ``sim/task.py``);
+``object_in_camera`` uses the simapp's camera frustum (:func:`in_camera_view`, ``markov/cameras/frustum.py``).
+``is_crashed`` comes from the crash rule (``sim/race_rules.py``).
 """
 
 from __future__ import annotations
@@ -116,21 +116,6 @@ OBJECT_PARAM_KEYS: tuple[str, ...] = (
 )
 """The keys ``TrackData.get_object_reward_params`` returns, in its order (``is_crashed`` comes from the crash rule,
 see :func:`is_crashed`). ``dict.update`` into racer's params keeps ``PARAM_KEYS``' order."""
-
-
-def empty_object_params() -> dict:
-    """The object params without objects (a time trial): the simapp's defaults, ``agent_ctrl/constants.py:
-    RewardParam`` (``get_object_reward_params`` returns nothing then)."""
-    return {
-        "closest_objects": [0, 0],
-        "objects_location": [],
-        "objects_left_of_center": [],
-        "objects_speed": [],
-        "objects_heading": [],
-        "objects_distance_from_center": [],
-        "objects_distance": [],
-        "object_in_camera": False,
-    }
 
 
 @lru_cache(maxsize=64)

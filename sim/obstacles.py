@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 
 import numpy as np
 
@@ -90,6 +90,7 @@ class WorldObject:
     x: float
     y: float
     yaw: float
+    _: KW_ONLY
     length: float
     width: float
     height: float
@@ -102,7 +103,16 @@ class WorldObject:
     def of(cls, kind: str, x: float, y: float, yaw: float, speed: float = 0.0) -> WorldObject:
         """An object of a known kind, sized from :data:`FOOTPRINTS`."""
         fp = FOOTPRINTS[kind]
-        return cls(float(x), float(y), float(yaw), fp.length, fp.width, fp.height, float(speed), kind)
+        return cls(
+            float(x),
+            float(y),
+            float(yaw),
+            length=fp.length,
+            width=fp.width,
+            height=fp.height,
+            speed=float(speed),
+            kind=kind,
+        )
 
     @property
     def footprint(self) -> Footprint:

@@ -20,7 +20,7 @@ car than the one the reported profile is computed for.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -70,6 +70,7 @@ class RacingLine:
     """(N, 2) positions, m; the lap closes back to the first."""
     offsets: np.ndarray
     """(N,) offsets from the centre line, m (+ = left)."""
+    _: KW_ONLY
     ds: np.ndarray
     """(N,) length from point i to point i + 1 (the last one back to the first), m."""
     curvature: np.ndarray
@@ -195,9 +196,8 @@ def _soft_lap_time(v_curve, ds, accel: float, brake: float):  # noqa: ANN001, AN
     speed at i is the least over j of v_j² + 2 a |S_i - S_j| in the pass's direction), with a smooth minimum
     (``torch.logcumsumexp``) so that the lap time is differentiable in the line's shape, unlike the real passes.
 
-    The lap time, not ``sum(ds / v_curve)``: measured on reinvent_base with the default car, the line minimising
-    that sum was 0.27 s slower (6.56 s) once braking and acceleration were applied, because it asks for speeds
-    the car cannot reach between bends."""
+    The lap time, not ``sum(ds / v_curve)``: the line minimising that sum asks for speeds the car cannot reach
+    between bends (0.27 s slower on reinvent_base with the default car once braking and acceleration apply)."""
     import torch
 
     tau = SOFT_MIN_M2S2
@@ -304,14 +304,10 @@ def longitudinal_budget(rate: float, v: float, kappa: float, peak: float, grip: 
     straight-line ``rate`` (the motors' limit), capped by a friction ellipse whose radii are ``peak`` (the largest
     rate measured in that direction, at least ``grip``) along the car and ``grip`` (:func:`lateral_grip`) across it.
 
-    Why: the tyres give one force, shared between turning and braking. Without it the Gazebo car (tyre mu 0.44,
-    braking at 4 m/s² on a straight and cornering at up to 3.9 m/s²) was asked to brake at its full straight-line
-    rate into AWS_track's hairpins while turning at its grip limit; it entered them 0.7 m/s above the profile and
-    the controller's lap was 8.6 % over the limit (Oval_track 5.8 %); with it, 4.2 % and 4.8 % (docs/racing.md,
-    2026-11-28). A default car's motors (5.6 m/s²) are well inside its grip (7.8 m/s²), so the ellipse only
-    binds near its lateral limit. An earlier ellipse scaled the motors' own rate by sqrt(1 - (kappa / kmax)²),
-    leaving no braking at the grip limit even for the default car: its 6.83 s limit on reinvent_base was beaten
-    by the controller at 6.53 s, so it was dropped (2026-11-25)."""
+    Why: the tyres give one force, shared between turning and braking; a car whose motors brake about as hard as
+    its tyres grip (the Gazebo car) cannot brake at its straight-line rate while turning at its grip limit. Radii
+    from the tyres, not the motors' rate scaled down, so that a car whose motors are well inside its grip (the
+    default car) keeps braking near its lateral limit."""
     lateral = v * v * abs(kappa)
     return min(rate, peak * math.sqrt(max(1.0 - (lateral / grip) ** 2, 0.0)))
 
@@ -325,4 +321,14 @@ def racing_line(track: Track, limits: CarLimits, margin: float = DEFAULT_MARGIN_
     curvature = closed_curvature(points)
     speed, lap = speed_profile(ds, curvature, limits, v_start=0.0)
     flying, flying_lap = speed_profile(ds, curvature, limits, v_start=None)
-    return RacingLine(points, offsets, ds, curvature, speed, flying[:-1], lap, flying_lap, cor)
+    return RacingLine(
+        points,
+        offsets,
+        ds=ds,
+        curvature=curvature,
+        speed=speed,
+        flying_speed=flying[:-1],
+        lap_time=lap,
+        flying_lap_time=flying_lap,
+        corridor=cor,
+    )

@@ -12,7 +12,7 @@ import bisect
 import math
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, dataclass, field
 
 import numpy as np
 
@@ -56,6 +56,7 @@ class EpisodeState:
     reversed: bool
     start_s: float
     """Arc length of the start waypoint (base_link's start), metres."""
+    _: KW_ONLY
     last_s: float
     travelled: float
     """Distance of the front point along the centre line from the start position, metres."""
@@ -129,7 +130,9 @@ class RacingTask:
         front = self.start_pose(index, reverse).ahead(FRONT_POINT_M)
         proj = track.project(front[None])
         s = float(proj.s[0])
-        self.state = EpisodeState(track, reverse, start_s, s, _wrap(s - start_s, track), int(proj.segment[0]))
+        self.state = EpisodeState(
+            track, reverse, start_s, last_s=s, travelled=_wrap(s - start_s, track), segment=int(proj.segment[0])
+        )
 
     def relocate(self, pose: Pose) -> None:
         """The car was put back on the track (an evaluation reset): progress goes on from where its front point is
@@ -150,6 +153,7 @@ class RacingTask:
         upright: bool,
         sim_time: float,
         command: tuple[float, float],
+        *,
         count_step: bool = True,
         objects: Sequence[WorldObject] = (),
         crashed: bool = False,
@@ -173,7 +177,7 @@ class RacingTask:
         st.history.append((st.travelled, pose.x, pose.y))
         on = self._road(wheels)
         progress = self._progress(st, s)
-        params = self._params(st, pose, front, proj, on, progress, sim_time, command)
+        params = self._params(st, pose, front, proj, on=on, progress=progress, sim_time=sim_time, command=command)
         if objects:
             params.update(object_params(self.track, pose, objects, st.reversed, model_s=s))
         params["is_crashed"] = bool(crashed)
@@ -214,6 +218,7 @@ class RacingTask:
         pose: Pose,
         front: np.ndarray,
         proj,
+        *,
         on: np.ndarray,
         progress: float,
         sim_time: float,
@@ -314,12 +319,12 @@ def _nearest_on_border(
     routes), and over the whole border when the nearest lies at the window's edge: on routes whose borders are
     sampled apart from the centre line (Tokyo_Training_track) it lies further on, and shapely searches it all."""
     n, window = len(segments), _BORDER_WINDOW
-    j, t, _, _ = nearest_segment(segments, point[0], point[1], hint, window, closed)
+    j, t, _, _ = nearest_segment(segments, point[0], point[1], hint, window=window, closed=closed)
     if 2 * window + 1 < n:
         lo, hi = hint - window, hint + window
         at_edge = (j - lo) % n == 0 or (hi - j) % n == 0 if closed else j in (max(lo, 0), min(hi, n - 1))
         if at_edge:
-            j, t, _, _ = nearest_segment(segments, point[0], point[1], hint, n, closed)
+            j, t, _, _ = nearest_segment(segments, point[0], point[1], hint, window=n, closed=closed)
     sx, sy, vx, vy, _ = segments[j]
     return sx + t * vx, sy + t * vy
 

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.errors import UserError
+from common.errors import UserError, did_you_mean
 from sim.routes import cached_route_names, deepracer_route_names, pull_command, route_checksums, tracks_dir
 from sim.track_gen import DEFAULT_TRACK, is_racer_track, racer_track_array, racer_track_names
 
@@ -52,7 +52,7 @@ def track_source(track: str | Path) -> Path | str:
     """Where a track name leads: a racer track's name (a str), or the path of its ``.npy`` file.
 
     Raises TrackError for a missing file, a DeepRacer track not yet pulled (giving the pull command) or an
-    unknown name."""
+    unknown name (with the closest known names)."""
     text = str(track)
     if isinstance(track, str) and is_racer_track(text):
         return text
@@ -69,9 +69,10 @@ def track_source(track: str | Path) -> Path | str:
             f"DeepRacer track {text!r} is not in the track folder {str(tracks_dir())!r}: get it with "
             f"`{pull_command(text)}` (or set RACER_TRACKS_DIR to a folder of DeepRacer .npy routes)"
         )
+    guess = did_you_mean(text, known_track_names())
     raise TrackError(
-        f"unknown track {text!r}: give a .npy path, one of racer's tracks ({', '.join(racer_track_names())}) or a "
-        f"DeepRacer track name (`racer tracks ls` lists them)"
+        f"unknown track {text!r}: {guess + ' Or give' if guess else 'give'} a .npy path, one of racer's tracks "
+        f"({', '.join(racer_track_names())}) or a DeepRacer track name (`racer tracks ls` lists them)"
     )
 
 
@@ -320,7 +321,7 @@ class Track:
         segs = self._segment_list
         if 2 * window + 1 >= len(segs):
             return self.project(np.array([[x, y]]))
-        best, best_t, best_d2, best_cross = nearest_segment(segs, x, y, hint, window, self.closed)
+        best, best_t, best_d2, best_cross = nearest_segment(segs, x, y, hint, window=window, closed=self.closed)
         lateral = math.copysign(math.sqrt(best_d2), best_cross) if best_cross != 0 else 0.0
         if abs(lateral) >= self.widths.max():  # lost (e.g. a jump): search everything
             return self.project(np.array([[x, y]]))
@@ -395,7 +396,7 @@ def polyline_segments(poly: np.ndarray) -> list[Segment]:
 
 
 def nearest_segment(
-    segments: list[Segment], x: float, y: float, hint: int, window: int, closed: bool
+    segments: list[Segment], x: float, y: float, hint: int, *, window: int, closed: bool
 ) -> tuple[int, float, float, float]:
     """Among the segments within ``window`` of ``hint`` (all of them when the window covers the polyline), the one
     nearest (x, y): (its index, the fraction t along it of the nearest point, the squared distance, and the cross

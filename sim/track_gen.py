@@ -12,6 +12,7 @@ gives the same bytes, on any machine.
 | ``racer_loop`` | 17.6 m | 0.76 m | CCW | reinvent_base's size (17.71 m, 0.76 m); the default track |
 | ``racer_loop_cw`` | 17.6 m | 0.76 m | CW | ``racer_loop`` mirrored: the same bends, turned the other way |
 | ``racer_wide`` | 24.0 m | 1.07 m | CCW | the 2019-2022 tracks' width and length |
+| ``racer_bends`` | 20.0 m | 0.76 m | CCW | a third shape: a long sweeper, two tighter bends (0.83 m radius) and an S |
 | ``racer_straight`` | 5.7 m | 0.61 m | open | Straight_track: an open line, no lap |
 """
 
@@ -57,6 +58,7 @@ _SPECS: dict[str, LoopSpec | LineSpec] = {
     "racer_loop": LoopSpec(((2, 0.22, 0.0), (3, 0.10, 0.6)), (1.5, 1.0), 17.6, 0.76),
     "racer_loop_cw": LoopSpec(((2, 0.22, 0.0), (3, 0.10, 0.6)), (1.5, 1.0), 17.6, 0.76, clockwise=True),
     "racer_wide": LoopSpec(((2, 0.18, 0.3), (3, 0.12, -0.4), (4, 0.05, 1.0)), (1.4, 1.0), 24.0, 1.07),
+    "racer_bends": LoopSpec(((2, 0.25, 0.2), (3, 0.14, 1.2), (5, 0.05, 0.4)), (1.3, 1.0), 20.0, 0.76),
     STRAIGHT_TRACK: LineSpec(5.7, 0.61, 0.27),
 }
 assert DEFAULT_TRACK in _SPECS

@@ -46,6 +46,7 @@ def _draw_vehicle(
     img: np.ndarray,
     frame: TextureFrame,
     scale: float,
+    *,
     x: float,
     y: float,
     yaw: float,
@@ -66,7 +67,18 @@ def draw_objects(img: np.ndarray, frame: TextureFrame, objects: Sequence[WorldOb
     × width, rotated by its yaw), boxes in :data:`BOX_COLOR`, bot cars in :data:`BOT_COLOR` with a nose line."""
     for o in objects:
         is_car = o.kind in (BOT_CAR, BOT_CAR_OBSTACLE)
-        _draw_vehicle(img, frame, scale, o.x, o.y, o.yaw, o.length, o.width, object_color(o), nose=is_car)
+        _draw_vehicle(
+            img,
+            frame,
+            scale,
+            x=o.x,
+            y=o.y,
+            yaw=o.yaw,
+            length=o.length,
+            width=o.width,
+            color=object_color(o),
+            nose=is_car,
+        )
 
 
 def top_down(
@@ -84,7 +96,18 @@ def top_down(
     if objects:
         draw_objects(img, frame, objects, scale)
     for pose in poses:
-        _draw_vehicle(img, frame, scale, pose.x, pose.y, pose.yaw, CAR_LENGTH_M, CAR_WIDTH_M, CAR_COLOR, nose=False)
+        _draw_vehicle(
+            img,
+            frame,
+            scale,
+            x=pose.x,
+            y=pose.y,
+            yaw=pose.yaw,
+            length=CAR_LENGTH_M,
+            width=CAR_WIDTH_M,
+            color=CAR_COLOR,
+            nose=False,
+        )
         nose = _pixels(frame, scale, pose.ahead(CAR_LENGTH_M)[None])[0]
         centre = _pixels(frame, scale, [(pose.x, pose.y)])[0]
         cv2.line(img, tuple(int(v) for v in centre), tuple(int(v) for v in nose), _NOSE_COLOR, 2, cv2.LINE_AA)

@@ -105,7 +105,7 @@ def build_model(
 
 # Compiled small at the origin, inside the car's bounds: MuJoCo's model statistics (extent, centre), which scale
 # the renderer's clip planes, stay those of the scene without slots. set_objects parks unused slots at runtime.
-# The colour is that of DeepRacer's default obstacle (sim.camera.DEFAULT_BOX_RGB).
+# The colour is that of DeepRacer's default obstacle (sim.box_raster.DEFAULT_BOX_RGB).
 _SLOT = """
     <body name="object_{k}" mocap="true" pos="0 0 0.01">
       <geom name="object_{k}" type="box" size="0.01 0.01 0.01" group="{group}" contype="0" conaffinity="0"
@@ -171,14 +171,3 @@ def set_objects(
     if rgba is not None and k:
         model.geom_rgba[g.start : g.start + k] = np.asarray(rgba, np.float32).reshape(k, 4)
     mujoco.mj_kinematics(model, data)
-
-
-def get_objects(model: mujoco.MjModel, data: mujoco.MjData, slots: np.ndarray | None = None) -> np.ndarray:
-    """The (K, 6) boxes of the slots in use, as :func:`set_objects` took them (from the current kinematics)."""
-    geoms = object_slot_geoms(model) if slots is None else slots
-    geoms = geoms[model.geom_group[geoms] == OBJECT_GEOM_GROUP]
-    pos = data.geom_xpos[geoms]
-    mat = data.geom_xmat[geoms]
-    yaw = np.arctan2(mat[:, 3], mat[:, 0])
-    size = 2 * model.geom_size[geoms]
-    return np.column_stack([pos[:, 0], pos[:, 1], yaw, size])

@@ -31,8 +31,31 @@ S3_BUCKET = "racer-it"
 
 def pytest_configure(config):
     config.addinivalue_line(
-        "markers", "slow(reason): takes minutes of real time (real processes, timed phases); it stays in the suite"
+        "markers",
+        "slow(reason): over 2 s of real time on a 2-core machine (real processes, trainings, a browser, Docker, "
+        "TensorFlow); a bare `pytest` leaves it out, `pytest -m slow` runs it, .ci/run runs both",
     )
+
+
+def _bare_run(config) -> bool:
+    """``pytest`` with neither paths nor ``-m``: the README's test command, the fast tests."""
+    return not config.option.markexpr and config.args_source == pytest.Config.ArgsSource.TESTPATHS
+
+
+def pytest_collection_modifyitems(config, items):
+    """A bare run leaves the slow tests out; named files or tests, or any ``-m``, run as asked."""
+    if not _bare_run(config):
+        return
+    slow = [item for item in items if item.get_closest_marker("slow")]
+    if slow:
+        config.hook.pytest_deselected(items=slow)
+        items[:] = [item for item in items if not item.get_closest_marker("slow")]
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    if _bare_run(config) and terminalreporter.stats.get("deselected"):
+        n = len(terminalreporter.stats["deselected"])
+        terminalreporter.write_line(f"{n} slow tests left out: `pytest -m slow` runs them (README: Tests)")
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -43,6 +66,25 @@ def racer_cache_dir(tmp_path_factory):
         folder = tmp_path_factory.mktemp("racer-cache")
         patch.setenv("RACER_CACHE_DIR", str(folder))
         yield folder
+
+
+@pytest.fixture(autouse=True)
+def _trainers_stop_beating(monkeypatch):
+    """A Trainer a test starts in this process stops its heartbeat thread when the test ends (``run_trainer`` stops
+    it in the product): otherwise each would beat on into the session's Redis for the rest of the session. Only the
+    heartbeat: a module's shared trainer goes on training."""
+    from trainer.process import Trainer
+
+    started, start = [], Trainer.start
+
+    def recorded(self: Trainer) -> None:
+        started.append(self)
+        start(self)
+
+    monkeypatch.setattr(Trainer, "start", recorded)
+    yield
+    for trainer in started:
+        trainer.liveness.stop()
 
 
 @pytest.fixture(scope="session")

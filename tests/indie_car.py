@@ -38,9 +38,10 @@ Between command and actuators, in this order (see :class:`Effects` for each para
   limit) and backlash between servo and wheels;
 - speed: ``gain · cmd``, battery sag, dead time, lag, cornering drag, then the motor.
 
-The first nine are the effects racer's calibration library declares; the last six (:data:`OUT_OF_LIBRARY`) are
-ones real cars have that it does not model. Before t = 0 the car stands still with a zero command applied for
-ever, so each filter and queue starts at the value a zero command settles to.
+The first nine and the rate limit are the effects racer's calibration library declares (:data:`DECLARED`); the
+other five (:data:`OUT_OF_LIBRARY`) are ones real cars have that it does not model. Before t = 0 the car stands
+still with a zero command applied for ever, so each filter and queue starts at the value a zero command settles
+to.
 
 Logs
 ----
@@ -119,9 +120,10 @@ PARAMETERS: dict[str, tuple[str, float]] = {
     "battery_sag": ("drop_per_s", 0.0),
 }
 """Each effect's one parameter: its name (the declared ones' as in racer's car.json) and the value that does nothing."""
-DECLARED = tuple(list(PARAMETERS)[:9])
-"""The effects racer's calibration library models."""
-OUT_OF_LIBRARY = tuple(list(PARAMETERS)[9:])
+DECLARED = (*list(PARAMETERS)[:9], "steering_rate_limit")
+"""The effects racer's calibration library models (the rate limit as ``steering_rate``, seconds per 60°: 60 /
+``max_dps``)."""
+OUT_OF_LIBRARY = tuple(name for name in PARAMETERS if name not in DECLARED)
 """Effects real cars have that racer's calibration library does not model."""
 
 
@@ -141,12 +143,13 @@ class Effects:
     - ``speed_delay``: ``delay_s``, dead time of the speed target.
     - ``speed_lag``: ``tau_s``, first-order lag of the speed target.
     - ``understeer``: ``k_s2pm2``, the steering target is divided by ``1 + k v²``, v the car's forward speed.
+    - ``steering_rate_limit``: ``max_dps``, the servo turns no faster than this, degrees per second (racer's
+      ``steering_rate`` gives it as 60 / max_dps seconds per 60°).
 
     Out of library (:data:`OUT_OF_LIBRARY`):
 
     - ``steering_backlash``: ``band_deg``, play between servo and wheels: the wheels move only when the servo
       is more than ``band_deg`` from them, and then lag it by ``band_deg`` (a hysteresis of ±band_deg).
-    - ``steering_rate_limit``: ``max_dps``, the servo turns no faster than this, degrees per second.
     - ``steering_asymmetry``: ``right_gain``, right (negative) steering targets are multiplied by it.
     - ``steering_speed_fade``: ``k_spm``, the steering target is divided by ``1 + k v`` (linear in v, s/m).
     - ``cornering_drag``: ``k_s2pm``, the wheel speed target is multiplied by ``1 - k |a_lat|`` (a_lat = vx · r),

@@ -110,6 +110,22 @@ def test_lag_is_the_exact_first_order_step_response():
     np.testing.assert_allclose(speed, 2.0 * (1 - np.exp(-t / tau)), rtol=1e-12)
 
 
+def test_slew_rate_ramps_a_step_at_60_degrees_per_s_per_60deg():
+    # 0.5 s/60° = 120 °/s = 1° per substep (h = 1/120): a 5° step takes 5 substeps, then holds; back to 0 likewise.
+    steer, _ = actuate_sequence(params(steering_rate={"s_per_60deg": 0.5}), np.array([5.0, 0.0]), np.ones(2), 8, H)
+    np.testing.assert_allclose(steer, [1, 2, 3, 4, 5, 5, 5, 5, 4, 3, 2, 1, 0, 0, 0, 0])
+
+
+def test_slew_rate_after_the_lag_limits_only_fast_changes():
+    # A lag whose fastest change (its first substep, 20·(1 - e^(-h/τ)) ≈ 0.83°) is below the slew limit's 1° a
+    # substep passes through unchanged.
+    lag = {"steering_lag": {"tau_s": 0.2}}
+    cmd = np.array([20.0, 20.0])
+    free, _ = actuate_sequence(params(**lag), cmd, np.ones(2), 8, H)
+    both, _ = actuate_sequence(params(**lag, steering_rate={"s_per_60deg": 0.5}), cmd, np.ones(2), 8, H)
+    np.testing.assert_allclose(both, free, rtol=1e-12)
+
+
 def test_understeer_divides_by_one_plus_k_v_squared():
     p = params(understeer={"k_s2pm2": 0.25})
     steer, _ = actuate_sequence(p, np.array([20.0, 20.0]), np.array([1.0, 2.0]), 1, H)
@@ -121,6 +137,7 @@ def test_streaming_equals_batch():
         {
             "steering_delay": {"delay_s": 0.07},
             "steering_lag": {"tau_s": 0.3},
+            "steering_rate": {"s_per_60deg": 0.2},
             "speed_delay": {"delay_s": 0.03},
             "speed_lag": {"tau_s": 0.2},
             "understeer": {"k_s2pm2": 0.1},

@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -18,6 +20,7 @@ def _ci_pdoc_args() -> list[str]:
     return args[:out] + args[out + 2 :]  # without .ci/run's output folder
 
 
+@pytest.mark.slow(reason="starts real racer processes")
 def test_the_api_page_builds_and_names_the_env_its_config_the_reward_params_and_entry_points(tmp_path: Path) -> None:
     env = {**os.environ, "PDOC_ALLOW_EXEC": "1", "PYTHONPATH": str(ROOT)}
     cmd = [sys.executable, "-W", "error::UserWarning", "-m", "pdoc", "-o", str(tmp_path), *_ci_pdoc_args()]

@@ -10,7 +10,7 @@ from common.config import AugmentationConfig
 from sim.augment import augment_frame, needs_color
 
 H, W = 120, 160
-ALL_ON = AugmentationConfig(color_prob=1, translate_prob=1, shadow_prob=1, salt_pepper_prob=1)
+ALL_ON = AugmentationConfig(color_prob=1, translate_prob=1, shadow_prob=1, sharpen_prob=1, salt_pepper_prob=1)
 
 
 def colorful_rgb(seed: int = 0) -> np.ndarray:
@@ -140,6 +140,17 @@ def test_shadow_is_a_region_spanning_top_to_bottom() -> None:
         assert dark[0].any() and dark[-1].any()
         # Inside the shadow the factor is uniform, so all darkened pixels share one value.
         assert len(np.unique(out[dark])) == 1
+
+
+def test_sharpening_steepens_an_edge_and_leaves_flat_areas_alone() -> None:
+    frame = np.full((H, W), 80, np.uint8)
+    frame[:, W // 2 :] = 160
+    out = augment_frame(frame, AugmentationConfig(sharpen_prob=1, sharpen_max=2.0), np.random.default_rng(1))
+    assert out[:, 10].tolist() == frame[:, 10].tolist() and out[:, -10].tolist() == frame[:, -10].tolist()
+    # An unsharp mask overshoots on both sides of the edge: darker just left of it, brighter just right.
+    assert out[5, W // 2 - 1] < 80 and out[5, W // 2] > 160
+    off = augment_frame(frame, AugmentationConfig(sharpen_prob=1, sharpen_max=0.0), np.random.default_rng(1))
+    np.testing.assert_array_equal(off, frame)
 
 
 @pytest.mark.parametrize("amount", [0.02, 0.1, 0.3, 0.5])

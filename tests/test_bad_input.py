@@ -99,6 +99,7 @@ def assert_one_line_error(out: subprocess.CompletedProcess, expected: str) -> No
     assert "Traceback" not in out.stdout + out.stderr
 
 
+@pytest.mark.slow(reason="many cases, each a real env: over 6 s in all")
 @pytest.mark.parametrize(("args", "expected"), TRAIN_CASES, ids=[" ".join(a) for a, _ in TRAIN_CASES])
 def test_racer_train_refuses_bad_input_before_starting_anything(workdir, args, expected):
     out = racer(["train", "--time-limit", "60s", *args], workdir)
@@ -106,11 +107,13 @@ def test_racer_train_refuses_bad_input_before_starting_anything(workdir, args, e
     assert not (workdir / "runs").exists(), "nothing may be written for a run that did not start"
 
 
+@pytest.mark.slow(reason="many cases, each a real env: over 6 s in all")
 @pytest.mark.parametrize(("args", "expected"), OTHER_CASES, ids=[" ".join(a) for a, _ in OTHER_CASES])
 def test_other_commands_refuse_bad_input_in_one_line(workdir, args, expected):
     assert_one_line_error(racer(args, workdir), expected)
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_missing_bucket_and_missing_credentials_are_one_line(workdir, s3_server):
     store = ["--store", "s3://no-such-bucket-here/x", "--s3-endpoint", s3_server]
     assert_one_line_error(racer(["train", *store], workdir), "bucket 'no-such-bucket-here' does not exist")

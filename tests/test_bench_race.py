@@ -144,6 +144,7 @@ def test_a_user_can_turn_the_benchs_collapse_guard_off(tmp_path) -> None:  # noq
     assert not [note for note in hp.ignored() if "collapse_" in note]
 
 
+@pytest.mark.slow(reason="runs racer train with its real processes")
 @pytest.mark.parametrize(
     ("option", "text", "key", "value"),
     [

@@ -28,7 +28,19 @@ sb3 = pytest.importorskip("stable_baselines3", reason="racer bench train's basel
 
 def _lap(system: str, seed: int, t: float | None, steps: int | None) -> LapRun:
     confirmed = None if t is None else t + 5
-    return LapRun(system, seed, t is not None, t, steps, 99.0, [], 800, 10.0 + seed, 15.0 - seed, confirmed)
+    return LapRun(
+        system,
+        seed,
+        lapped=t is not None,
+        time_to_lap_s=t,
+        env_steps_to_lap=steps,
+        wall_s=99.0,
+        curve=[],
+        batch_steps=800,
+        first_policy_s=10.0 + seed,
+        update_s=15.0 - seed,
+        confirmed_s=confirmed,
+    )
 
 
 def test_summary_medians_bounds_and_speedup() -> None:
@@ -60,10 +72,10 @@ def test_a_run_is_judged_by_its_first_full_completion() -> None:
         {"time_s": 21.0, "env_steps": 1800, "completion_rate": 1.0, "confirmed_s": 30.0},
         {"time_s": 33.0, "env_steps": 2700, "completion_rate": 1.0, "confirmed_s": 40.0},
     ]
-    run = _lap_run("racer", 0, curve, 50.0, 900, [12.0, 21.0, 33.0, 41.0])
+    run = _lap_run("racer", 0, curve, wall_s=50.0, batch_steps=900, made_s=[12.0, 21.0, 33.0, 41.0])
     assert (run.lapped, run.time_to_lap_s, run.env_steps_to_lap, run.confirmed_s) == (True, 21.0, 1800, 30.0)
     assert run.first_policy_s == 12.0 and run.update_s == 9.0  # gaps 9, 12, 8
-    never = _lap_run("sb3", 0, curve[:1], 50.0, 900, [12.0])
+    never = _lap_run("sb3", 0, curve[:1], wall_s=50.0, batch_steps=900, made_s=[12.0])
     assert (never.lapped, never.time_to_lap_s, never.env_steps_to_lap, never.update_s) == (False, None, None, None)
 
 
@@ -99,6 +111,7 @@ def test_sb3_gets_the_runs_hyperparameters(tmp_path: Path) -> None:
     assert (kw["n_steps"], kw["seed"], kw["vf_coef"], kw["max_grad_norm"]) == (100, 7, 0.5, 0.5)
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_sb3_network_is_deepracers_shallow_cnn_and_is_evaluated_by_racers_code() -> None:
     from stable_baselines3 import PPO
 
@@ -128,6 +141,7 @@ def build_policy_shapes() -> list[tuple[int, ...]]:
     return [tuple(p.shape) for p in model.trunk.parameters()]
 
 
+@pytest.mark.slow(reason="runs racer train with its real processes")
 def test_bench_train_short_run_writes_its_json(tmp_path: Path) -> None:
     # 20 s per system: a run that does not lap must say so and run to the limit; one that laps (SB3 can, on
     # racer_loop, from a few updates) stops at its first robust evaluation, which its curve keeps.
@@ -158,6 +172,7 @@ def test_bench_train_short_run_writes_its_json(tmp_path: Path) -> None:
     assert "seed 3 racer" in proc.stdout and "seed 3 sb3" in proc.stdout
 
 
+@pytest.mark.slow(reason="runs racer train with its real processes")
 def test_bench_train_bad_seeds_is_one_line() -> None:
     proc = subprocess.run(
         [sys.executable, "-m", "racer", "bench", "train", "--seeds", "a,b"], capture_output=True, text=True

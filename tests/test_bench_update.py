@@ -43,6 +43,7 @@ def test_a_frozen_layer_and_an_input_that_needs_a_gradient_are_counted_as_autogr
     assert step_flops([cost], 10) == 10 * 2 * 8 * 2
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_deepracers_shallow_network_step_flops_by_hand() -> None:
     # Per 120×160 frame: conv 32 8/4 → 32×29×39 × 64 = 2,316,288 MACs; conv 64 4/2 → 64×13×18 × 512 = 7,667,712;
     # conv 64 3/1 → 64×11×16 × 576 = 6,488,064; dense 11264→512 = 5,767,168; heads 512×10 + 512 = 5,632.
@@ -58,6 +59,7 @@ def test_deepracers_shallow_network_step_flops_by_hand() -> None:
     assert update_flops(stacked, 64) == 8_245_542_912 + 64 * 2 * 2 * 2 * 2_316_288
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_counting_leaves_the_network_as_it_was() -> None:
     model = build_policy((120, 160, 1), DISCRETE, PolicyConfig(batch_norm=True, dropout=0.5))
     model.train()
@@ -83,6 +85,7 @@ def test_the_ceiling_is_the_share_a_step_gets_with_its_gemms_at_the_peak() -> No
     assert _ceiling(8.0, 400.0, 0.0) == 1.0 and _ceiling(8.0, None, 20.0) is None
 
 
+@pytest.mark.slow(reason="starts real racer processes")
 def test_bench_update_reports_its_share_of_the_gemm_peak(tmp_path: Path) -> None:
     # A subprocess: the benchmark sets torch's thread count, which must not change the test runner's.
     out = tmp_path / "update.json"

@@ -37,6 +37,7 @@ def fitted(tmp_path_factory, ros1) -> dict:
     return {"dir": out, "output": result.output, "report": json.loads((out / "r.json").read_text())}
 
 
+@pytest.mark.slow(reason="fits a car to logs")
 def test_calibrate_writes_the_design_report_and_a_calibration(fitted):
     report = fitted["report"]
     assert {"effects", "error_before", "error_after", "fit_on", "evaluated_on"} <= set(report)

@@ -51,6 +51,9 @@ class Injected:
         if self.name == "speed_lag":
             self.y_speed += (speed - self.y_speed) * H / self.value
             return steer, self.y_speed
+        if self.name == "speed_rate":  # at most 1 m/s every `value` seconds
+            self.y_speed += float(np.clip(speed - self.y_speed, -H / self.value, H / self.value))
+            return steer, self.y_speed
         if self.name == "steering_delay":
             self.queue.append(steer)
             n = round(self.value / H)
@@ -110,9 +113,11 @@ CASES = [
     ("steering_delay", 0.1, "delay_s", 0.2),
     ("speed_lag", 0.3, "tau_s", 0.15),
     ("steering_gain", 0.6, "gain", 0.1),
+    ("speed_rate", 0.4, "s_per_mps", 0.15),
 ]
 
 
+@pytest.mark.slow(reason="fits a car to logs")
 @pytest.mark.parametrize(("effect", "value", "param", "rtol"), CASES)
 def test_calibration_names_and_measures_an_undeclared_effect(tmp_path, effect, value, param, rtol):
     trajectories = read_log(write_log(tmp_path / "car.csv", effect, value))
@@ -145,6 +150,7 @@ def test_calibration_names_and_measures_an_undeclared_effect(tmp_path, effect, v
     assert scored and not scored & (fitted | chosen_on)
 
 
+@pytest.mark.slow(reason="fits a car to logs")
 def test_clean_car_gets_no_effect(tmp_path):
     trajectories = read_log(write_log(tmp_path / "clean.csv", None, 0.0))
     result = calibrate(trajectories, max_windows=120, progress=lambda _: None)
@@ -155,6 +161,15 @@ def test_clean_car_gets_no_effect(tmp_path):
     # The simulator's own car replays its own log closely: what is left is the noise and the initial state.
     assert result.report["error_before"]["position_m"] < 0.05
     assert result.report["error_before"]["heading_deg"] < 3.0
+
+
+@pytest.mark.slow(reason="fits a car to logs")
+def test_candidates_without_the_base_effects_fit_on_racers_car(tmp_path):
+    """``--effect steering_lag`` alone: no base effect to fit first, and the effect is still found."""
+    trajectories = read_log(write_log(tmp_path / "car.csv", "steering_lag", 0.3, episodes=12))
+    result = calibrate(trajectories, ["steering_lag"], max_windows=30, progress=lambda _: None)
+    assert result.report["base"] == []
+    assert [e["name"] for e in result.report["effects"]] == ["steering_lag"]
 
 
 def test_replay_drives_the_simulators_car(tmp_path):
@@ -184,6 +199,7 @@ def test_replay_drives_the_simulators_car(tmp_path):
         np.testing.assert_allclose(np.array(xs)[:, 1], sim["y"][i, 1:], atol=1e-9)
 
 
+@pytest.mark.slow(reason="fits a car to logs")
 def test_env_built_with_the_calibration_reproduces_the_measured_car(tmp_path):
     """Fit, write car.json, load it into an env, drive the logged commands: it follows the log, the plain env not."""
     from racer.calibrate import run_calibrate
@@ -244,7 +260,11 @@ def test_detect_timing_tells_the_three_rules_apart(rule):
             "nominal": np.arange(81) / 15 + rng.uniform(-0.015, 0.015, 81),
         }[rule]
         zeros = np.zeros(81)
-        trajectories.append(Trajectory("synthetic", ep, stamps, zeros, zeros + 1, x, zeros, zeros))
+        trajectories.append(
+            Trajectory(
+                "synthetic", ep, stamps, steer_cmd_deg=zeros, speed_cmd_mps=zeros + 1, x=x, y=zeros, heading_deg=zeros
+            )
+        )
     assert detect_timing(trajectories) == rule
 
 

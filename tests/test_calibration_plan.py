@@ -18,10 +18,12 @@ from sim.calibration.plan import (
     MANOEUVRES,
     MIN_CONDITION_ROWS,
     MIN_STEPS,
+    command_steps,
     identifiability,
     pairs_confounded,
     plan_text,
 )
+from sim.calibration.values import DEFAULT_STEPS
 from sim.physics import WHEELBASE_M
 
 HZ = 15.0
@@ -38,7 +40,9 @@ def drive(segments: list[tuple[float, float, float]], hz: float = HZ) -> Traject
         y[k + 1] = y[k] + speed[k] * math.sin(h[k]) * dt
         h[k + 1] = h[k] + speed[k] * math.tan(math.radians(steer[k])) / WHEELBASE_M * dt
     heading = np.degrees(np.angle(np.exp(1j * h)))
-    return Trajectory("test", 0, np.arange(n) * dt, steer, speed, x, y, heading)
+    return Trajectory(
+        "test", 0, np.arange(n) * dt, steer_cmd_deg=steer, speed_cmd_mps=speed, x=x, y=y, heading_deg=heading
+    )
 
 
 def circles(steers: tuple[float, ...], speeds: tuple[float, ...], seconds: float = 3.0) -> Trajectory:
@@ -53,13 +57,17 @@ def verdicts(trajectories: list[Trajectory]) -> dict[str, dict]:
 def full_plan() -> list[Trajectory]:
     """Logs of every manoeuvre of the plan, short versions."""
     steps = [(10.0 if k % 2 else 25.0, 1.0, 1.0) for k in range(12)]
+    large_steps = [(20.0 if k % 2 else -20.0, 1.0, 1.0) for k in range(12)]
     speed_steps = [(0.0, 1.5 if k % 2 else 0.5, 1.5) for k in range(12)]
+    large_speed_steps = [(0.0, 2.5 if k % 2 else 0.5, 1.5) for k in range(12)]
     return [
         circles((15.0, -15.0, 10.0, -10.0), (0.5, 1.0, 1.5)),
         circles((30.0, -30.0, 20.0), (0.5, 1.0)),
         drive(steps),
+        drive(large_steps),
         circles((0.0,), (0.5, 1.0, 1.5, 2.0)),
         drive(speed_steps),
+        drive(large_speed_steps),
         circles((20.0, -20.0), (1.5, 2.0)),
     ]
 
@@ -132,6 +140,31 @@ def test_steering_steps_separate_delay_from_lag_only_when_enough_and_fine_enough
     coarse = steps(MIN_STEPS, hz=5.0)  # 0.2 s rows hide a dead time inside one row
     assert verdicts([coarse])["steering_delay"]["identifiable"]
     assert ["steering_delay", "steering_lag"] in pairs_confounded([coarse])
+
+
+def test_steps_of_two_sizes_tell_a_rate_limit_from_a_lag():
+    """A rate limit stretches large steps and not small ones: steps of one size leave it confounded with the lag."""
+    small = [(10.0 if k % 2 else 25.0, 1.0, 1.0) for k in range(MIN_STEPS + 1)]  # 15° steps
+    large = [(20.0 if k % 2 else -20.0, 1.0, 1.0) for k in range(MIN_STEPS + 1)]  # 40° steps
+    one_size = [drive(small)]
+    assert not verdicts(one_size)["steering_rate"]["identifiable"]
+    assert verdicts(one_size)["steering_rate"]["drive"] == "steering steps"
+    assert ["steering_lag", "steering_rate"] in pairs_confounded(one_size)
+    both = [drive(small), drive(large)]
+    evidence = verdicts(both)["steering_rate"]["evidence"]
+    assert evidence == {"large_steering_steps": MIN_STEPS, "small_steering_steps": MIN_STEPS}
+    assert ["steering_lag", "steering_rate"] not in pairs_confounded(both)
+    speed = [drive([(0.0, 1.5 if k % 2 else 0.5, 1.5) for k in range(MIN_STEPS + 1)])]
+    assert ["speed_lag", "speed_rate"] in pairs_confounded(speed)
+    speed.append(drive([(0.0, 2.5 if k % 2 else 0.5, 1.5) for k in range(MIN_STEPS + 1)]))
+    assert verdicts(speed)["speed_rate"]["identifiable"]
+    assert ["speed_lag", "speed_rate"] not in pairs_confounded(speed)
+
+
+def test_command_steps_are_the_median_change_where_a_command_changes():
+    log = drive([(10.0, 1.0, 1.0), (25.0, 1.0, 1.0), (10.0, 1.5, 1.0), (10.0, 2.5, 1.0)])
+    assert command_steps([log]) == {"steering": 15.0, "speed": 0.75}
+    assert command_steps([circles((10.0,), (1.0,))]) == DEFAULT_STEPS
 
 
 def test_small_command_changes_are_not_steps():

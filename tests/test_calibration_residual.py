@@ -37,7 +37,16 @@ def _trajectory(rng: np.random.Generator, episode: int, steps: int) -> Trajector
         x[k + 1] = x[k] + v[k] * np.cos(h[k]) * DT
         y[k + 1] = y[k] + v[k] * np.sin(h[k]) * DT
     heading = np.degrees(np.remainder(h + np.pi, 2 * np.pi) - np.pi)
-    return Trajectory("synthetic", episode, np.arange(steps) * DT, steer_a, speed_a, x, y, heading)
+    return Trajectory(
+        "synthetic",
+        episode,
+        np.arange(steps) * DT,
+        steer_cmd_deg=steer_a,
+        speed_cmd_mps=speed_a,
+        x=x,
+        y=y,
+        heading_deg=heading,
+    )
 
 
 def _windows(seed: int = 0, episodes: int = 30, steps: int = 150) -> Windows:
@@ -119,7 +128,16 @@ def test_position_errors_are_read_along_and_across_the_measured_path():
     """Windows of a car heading north (+y): a model east of it (+x) is to its right: negative cross-track."""
     n = 40
     t = np.arange(n) * DT
-    north = Trajectory("synthetic", 0, t, np.zeros(n), np.ones(n), np.zeros(n), t.copy(), np.full(n, 90.0))
+    north = Trajectory(
+        "synthetic",
+        0,
+        t,
+        steer_cmd_deg=np.zeros(n),
+        speed_cmd_mps=np.ones(n),
+        x=np.zeros(n),
+        y=t.copy(),
+        heading_deg=np.full(n, 90.0),
+    )
     windows = make_windows([north], timing="nominal")
     shape = (len(windows), windows.horizon)
     res = {"dx": np.full(shape, 0.05), "dy": np.full(shape, -0.02), "dheading": np.zeros(shape)}

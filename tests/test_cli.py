@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import cv2
+import pytest
 from typer.testing import CliRunner
 
 from common.defaults import DEFAULT_TRACK
@@ -71,6 +72,7 @@ def test_drive_reports_episodes_as_json(tmp_path):
     assert {r["status"] for r in rows} <= {"off_track", "lap_complete", "immobilized", "reversed", "time_up"}
 
 
+@pytest.mark.slow(reason="starts real racer processes")
 def test_bench_env_json_has_rate_and_parts(tmp_path):
     # A subprocess: the benchmark pins its process to one core, which must not pin the test runner.
     out = tmp_path / "bench.json"
@@ -84,6 +86,7 @@ def test_bench_env_json_has_rate_and_parts(tmp_path):
     assert not {"sensor", "race_type", "objects", "lidar_us_per_step", "objects_us_per_step"} & set(result)
 
 
+@pytest.mark.slow(reason="starts real racer processes")
 def test_bench_env_with_sensors_and_a_race_adds_them_and_their_parts(tmp_path):
     out = tmp_path / "bench.json"
     cmd = [sys.executable, "-m", "racer", "bench", "env", "--steps", "100", "--repeats", "1", "--json", str(out)]
@@ -97,6 +100,7 @@ def test_bench_env_with_sensors_and_a_race_adds_them_and_their_parts(tmp_path):
         assert result[f"{part}_us_per_step"] > 0
 
 
+@pytest.mark.slow(reason="starts real racer processes")
 def test_bench_env_reports_none_for_the_parts_an_env_does_not_have():
     from common.config import EnvConfig
     from racer.bench.env import race_config
@@ -139,7 +143,7 @@ def test_racer_bench_only_registers_the_benchmarks():
 
     tree = ast.parse(inspect.getsource(cli_bench))
     commands = [f for f in tree.body if isinstance(f, ast.FunctionDef) and f.decorator_list]
-    assert len(commands) == 13
+    assert len(commands) == 14
     for f in commands:
         calls = [n.func for n in ast.walk(f) if isinstance(n, ast.Call)]
         shown = [c for c in calls if isinstance(c, ast.Name) and c.id == "_show"]

@@ -188,6 +188,7 @@ def drive(
     return directions, rewards
 
 
+@pytest.mark.slow(reason="many cases, each a real env: over 6 s in all")
 @pytest.mark.parametrize("track", TRACKS)
 @pytest.mark.parametrize("pattern", WORKING)
 def test_reward_patterns_run_unchanged_in_both_directions(pattern: str, track: str, capsys) -> None:
@@ -418,6 +419,7 @@ def test_community_model_metadata_loads_or_is_refused_in_one_line(name: str) -> 
     env.close()
 
 
+@pytest.mark.slow(reason="many cases, each a real env: over 6 s in all")
 @pytest.mark.parametrize("name", SENSOR_METADATA)
 def test_stereo_and_lidar_community_files_drive_the_env_through_their_network(name: str) -> None:
     """The env gives the observation the file's sensors promise, and a network built for them acts on it."""
@@ -468,6 +470,7 @@ TRAIN_PAIRS = [
 ]
 
 
+@pytest.mark.slow(reason="a real trainer and worker over Redis")
 @pytest.mark.parametrize(("metadata", "hyperparams"), TRAIN_PAIRS)
 def test_community_files_train(metadata: str, hyperparams: str, redis_url, run_id, tmp_path) -> None:
     run, files = build_run(

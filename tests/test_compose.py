@@ -61,6 +61,35 @@ def test_role_commands_exist_and_take_every_variable_compose_sets():
     assert {"RACER_RUN_ID", "RACER_REDIS_URL", "RACER_STORE", "AWS_ENDPOINT_URL"} <= envvars("worker")
 
 
+def option_defaults(command: str) -> dict[str, object]:
+    """The default of each option of ``racer COMMAND`` that reads an environment variable, by variable."""
+    cmd = typer.main.get_command(app).commands[command]
+    return {p.envvar: p.default for p in cmd.params if getattr(p, "envvar", None)}
+
+
+COMPOSE_FILES = ["docker-compose.yml", *(str(p.relative_to(ROOT)) for p in sorted(ROOT.glob("deploy/**/*.yml")))]
+
+
+@pytest.mark.parametrize("name", COMPOSE_FILES)
+def test_a_compose_default_is_the_role_s_own_default(name):
+    """A role's defaults live in one place (``common/defaults.py``, through its command's options): a compose or swarm
+    file that passes a variable on with a fallback (``${RACER_EVAL_NICE:-5}``) must fall back to the same value,
+    so that a run under compose is the run ``racer train`` makes."""
+    checked = 0
+    for service in (load(name).get("services") or {}).values():
+        role = (service.get("command") or [None])[0]
+        if role not in ROLES or not isinstance(service.get("environment"), dict):
+            continue
+        defaults = option_defaults(role)
+        for var, value in service["environment"].items():
+            found = re.fullmatch(r"\$\{(\w+):-([^}]*)\}", str(value))
+            if found and found.group(1) == var and defaults.get(var) is not None:
+                assert str(defaults[var]) == found.group(2), (name, role, var, defaults[var], found.group(2))
+                checked += 1
+    if name == "docker-compose.yml":
+        assert checked >= 4  # the track, the trainer's threads, the evaluator's starts and nice at least
+
+
 def test_store_and_redis_point_at_the_compose_services():
     env = compose()["services"]["worker"]["environment"]
     url = env["RACER_REDIS_URL"]

@@ -16,6 +16,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow(reason="converts with TensorFlow and OpenVINO")
 @pytest.mark.skipif(
     importlib.util.find_spec("tensorflow") is None,
     reason="tensorflow is not installed (pip install 'racer[deepracer]')",

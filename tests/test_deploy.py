@@ -22,8 +22,9 @@ from common.car_calibration import CarCalibration
 from common.config import EnvConfig
 from common.defaults import DEFAULT_TRACK
 from common.framestack import FrameStack
-from common.policy import ActorCritic, action_space_spec, build_policy, checkpoint_to_bytes, load_policy
+from common.policy import ActorCritic, action_space_spec, build_policy
 from common.sensors import lidar_from_ranges, observation_spec
+from common.weights import checkpoint_to_bytes, load_policy
 from deploy.car.model_file import ExportError, model_info, model_observation
 from deploy.car.runtime import CsvSink, DeployError, Policy, drive, preprocess, preprocess_stereo
 from deploy.car.vehicle import (
@@ -207,6 +208,7 @@ def record_sim_video(runs: RunStore, path: Path, steps: int) -> list[int]:
     return actions
 
 
+@pytest.mark.slow(reason="starts real racer processes")
 def test_the_runtime_on_a_sim_video_commands_what_the_policy_chose(tmp_path):
     runs = make_run(tmp_path, "car")
     model = tmp_path / "model.onnx"
@@ -237,6 +239,7 @@ def test_the_runtime_on_a_sim_video_commands_what_the_policy_chose(tmp_path):
         assert float(row["throttle_out"]) == pytest.approx(throttle_output(cal, speed))
 
 
+@pytest.mark.slow(reason="starts real racer processes")
 def test_runtime_and_export_refuse_bad_input_in_one_line(tmp_path):
     (tmp_path / "not.onnx").write_bytes(b"not a model")
     with pytest.raises(ExportError, match="not.onnx"):

@@ -14,8 +14,8 @@ import pytest
 import torch
 
 from common.errors import OptionError
-from common.policy import (
-    build_policy,
+from common.policy import build_policy
+from common.weights import (
     checkpoint_from_bytes,
     checkpoint_to_bytes,
     load_weights,
@@ -136,6 +136,7 @@ def _racer(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.slow(reason="many cases, each a real env: over 6 s in all")
 @pytest.mark.parametrize(
     ("args", "expected"),
     [
@@ -217,7 +218,17 @@ def test_loss_scaling_steps_and_skips_a_step_whose_gradients_overflow():
         optimizer = make_optimizer(model, 3e-4, 0.0)
         before = [p.detach().clone() for p in model.parameters()]
         scaler = torch.amp.GradScaler("cpu", init_scale=init_scale)
-        stats = minibatch_step(model, optimizer, _batch(16), 0.2, 0.01, 0.5, "huber", 0.5, scaler)
+        stats = minibatch_step(
+            model,
+            optimizer,
+            _batch(16),
+            clip_eps=0.2,
+            beta_entropy=0.01,
+            value_coef=0.5,
+            loss_type="huber",
+            max_grad_norm=0.5,
+            scaler=scaler,
+        )
         moved = any(not torch.equal(a, b) for a, b in zip(before, model.parameters(), strict=True))
         assert stats["amp_skipped"] == float(skipped) and moved is not skipped, stats
         assert (stats["grad_norm"] == 0.0) is skipped and (scaler.get_scale() < init_scale) is skipped

@@ -29,7 +29,10 @@ def why_no_docker() -> str | None:
 
 
 NO_DOCKER = why_no_docker()
-pytestmark = pytest.mark.skipif(NO_DOCKER is not None, reason=str(NO_DOCKER))
+pytestmark = [
+    pytest.mark.skipif(NO_DOCKER is not None, reason=str(NO_DOCKER)),
+    pytest.mark.slow(reason="builds images and runs compose and a swarm on a real Docker engine"),
+]
 
 
 def image_exists(image: str) -> bool:

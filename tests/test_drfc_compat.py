@@ -158,6 +158,7 @@ def assert_params_match_the_simapp(
     return got
 
 
+@pytest.mark.slow(reason="many cases, each a real env: over 6 s in all")
 @needs_deepracer_tracks
 @pytest.mark.parametrize("name", deepracer_track_names())
 def test_every_deepracer_route_reads_as_the_simapp_reads_it_both_ways(name: str) -> None:
@@ -282,6 +283,7 @@ def test_racer_check_says_what_racer_does_with_each_file(tmp_path: Path) -> None
     assert "ok: racer train would accept these files" in out
 
 
+@pytest.mark.slow(reason="many cases, each a real env: over 6 s in all")
 @pytest.mark.parametrize(
     ("metadata", "fragment"),
     [
@@ -369,6 +371,7 @@ def test_drfc_race_variables_map_to_the_race(tmp_path: Path) -> None:
     assert run.env.race == race
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_racer_check_and_train_take_the_race_on_the_command_line(tmp_path: Path) -> None:
     race = tmp_path / "race.json"
     race.write_text(json.dumps({"race_type": "OBJECT_AVOIDANCE", "object_avoidance": {"number_of_obstacles": 4}}))

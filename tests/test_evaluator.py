@@ -19,7 +19,16 @@ from trainer.evaluator import (
 
 
 def trial(progress, status, lap=None, reverse=False):
-    return Trial(DEFAULT_TRACK, reverse, 0, progress, status, 10, lap, [[0.0, 0.0, 1.0]])
+    return Trial(
+        DEFAULT_TRACK,
+        reverse,
+        0,
+        progress=progress,
+        status=status,
+        steps=10,
+        lap_time_s=lap,
+        trajectory=[[0.0, 0.0, 1.0]],
+    )
 
 
 def test_score_ranks_completion_then_progress_then_lap_time():
@@ -84,7 +93,8 @@ def test_best_pointer_moves_only_to_a_higher_score(tmp_path):
 
 
 def test_a_real_checkpoint_is_evaluated_from_spread_starts_in_both_directions(tmp_path):
-    from common.policy import action_space_spec, build_policy, checkpoint_to_bytes
+    from common.policy import action_space_spec, build_policy
+    from common.weights import checkpoint_to_bytes
     from model_store.localize import localize_env
     from sim.env import RacerEnv
 
@@ -109,11 +119,13 @@ def test_a_real_checkpoint_is_evaluated_from_spread_starts_in_both_directions(tm
     assert [t["progress"] for t in again["trials"]] == [t["progress"] for t in record["trials"]]  # deterministic
 
 
+@pytest.mark.slow(reason="runs racer commands end to end")
 def test_racer_eval_cli_prints_writes_json_and_video(tmp_path):
     import cv2
     from typer.testing import CliRunner
 
-    from common.policy import action_space_spec, build_policy, checkpoint_to_bytes
+    from common.policy import action_space_spec, build_policy
+    from common.weights import checkpoint_to_bytes
     from racer.cli import app
     from sim.env import RacerEnv
 
@@ -152,12 +164,63 @@ def test_racer_eval_cli_prints_writes_json_and_video(tmp_path):
     assert missing.exit_code == 2 and "nope" in missing.output
 
 
+def test_racer_eval_says_its_progress_on_stderr_as_it_goes_and_keeps_json_on_stdout(tmp_path):
+    """A new user waited minutes on a silent ``racer eval``: it says which checkpoint it drives, each pass of the
+    trials and each condition on stderr as they end, its summary last; ``--json -`` keeps standard output JSON, and
+    ``--quiet`` says nothing."""
+    from typer.testing import CliRunner
+
+    from common.policy import action_space_spec, build_policy
+    from common.weights import checkpoint_to_bytes
+    from racer.cli import app
+    from sim.env import RacerEnv
+
+    run, _, runs = _stored_run(tmp_path, "says", track=DEFAULT_TRACK)
+    model = build_policy((120, 160, 1), action_space_spec(RacerEnv(track=DEFAULT_TRACK).actions), run.policy)
+    runs.save_checkpoint("says", 3, checkpoint_to_bytes(model.state_dict()), {"env_steps": 300})
+    runs.set_pointer("says", "best", 3)
+    args = ["eval", "--run-id", "says", "--store", str(tmp_path), "--episodes", "1", "--one-direction"]
+    args += ["--device", "cpu", "--json", "-"]
+    result = CliRunner().invoke(app, [*args, "--condition", "blur"])
+    assert result.exit_code == 0, result.output
+    record = json.loads(result.stdout)
+    lines = result.stderr.splitlines()
+    assert len(lines) == 5, lines
+    assert lines[0] == "checkpoint v3 of run says (best, 300 env steps), on cpu"
+    assert lines[1] == "driving 1 trial on racer_loop (1 start per direction, forward only), side by side"
+    ends = f"{record['off_track']} off track, {record['crashed']} crashed"
+    assert lines[2].startswith("as trained: 1 trial in ")
+    assert lines[2].endswith(f"{ends}, mean progress {record['mean_progress']:.1f} %")
+    blur = record["conditions"][0]
+    assert lines[3].startswith("condition 1/1 blur: 1 trial in ")
+    assert lines[3].endswith(f"mean progress {blur['mean_progress']:.1f} %")
+    best = "-" if record["best_lap_s"] is None else f"{record['best_lap_s']:.2f} s"
+    completion, progress = 100 * record["completion_rate"], record["mean_progress"]
+    summary = f"completion {completion:.0f}%, mean progress {progress:.1f}%, best lap {best}"
+    assert lines[4] == f"version 3: {summary}, score {record['score']:.1f}"
+    quiet = CliRunner().invoke(app, [*args, "--quiet"])
+    assert quiet.exit_code == 0, quiet.output
+    assert quiet.stderr == "" and json.loads(quiet.stdout)["version"] == 3
+
+
+def test_a_store_that_refuses_the_eval_video_warns_and_keeps_the_local_file(tmp_path, caplog):
+    from racer.evaluate import store_video
+
+    runs = RunStore(LocalStore(tmp_path / "store"))
+    runs.write_file("r", "videos", b"a file where the videos folder would be")
+    mp4 = tmp_path / "lap.mp4"
+    mp4.write_bytes(b"an mp4")
+    assert store_video(runs, "r", 3, mp4) is None
+    assert "racer view will not show" in caplog.text and str(mp4) in caplog.text and mp4.read_bytes() == b"an mp4"
+
+
 def test_evaluation_sim_trace_is_read_by_deepracer_utils(tmp_path):
     pytest.importorskip("deepracer.logs", reason="deepracer-utils is in the dev extra")
     from deepracer.logs import DeepRacerLog
 
-    from common.policy import action_space_spec, build_policy, checkpoint_to_bytes
+    from common.policy import action_space_spec, build_policy
     from common.simtrace import SimTraceRecorder
+    from common.weights import checkpoint_to_bytes
     from model_store.localize import localize_env
     from model_store.runs import evaluation_stamp, simtrace_key
     from sim.env import RacerEnv
@@ -170,7 +233,7 @@ def test_evaluation_sim_trace_is_read_by_deepracer_utils(tmp_path):
     model = build_policy((120, 160, 1), action_space_spec(RacerEnv(config=env_cfg).actions), run.policy)
     runs.save_checkpoint("evtrace", 0, checkpoint_to_bytes(model.state_dict()), {"env_steps": 0})
     recorder = SimTraceRecorder()
-    record = evaluate_checkpoint(runs, run, env_cfg, 0, EvalSettings(episodes=2), recorder)
+    record = evaluate_checkpoint(runs, run, env_cfg, 0, EvalSettings(episodes=2), recorder=recorder)
     text = recorder.take(include_open=True)
     key = simtrace_key("evtrace", "evaluation", 0, evaluation=evaluation_stamp(record["created"]))
     runs.store.put(key, text.encode())
@@ -181,9 +244,10 @@ def test_evaluation_sim_trace_is_read_by_deepracer_utils(tmp_path):
     df = log.dataframe()
     assert len(df) == sum(t["steps"] + 1 for t in record["trials"])  # a prepare row per episode
     assert df["episode"].nunique() == len(record["trials"])
-    assert df.groupby("episode")["progress"].max().round(1).tolist() == [
-        round(t["progress"], 1) for t in record["trials"]
-    ]
+    # The trial's progress is its last step's (a car that rolled back before it left the track has a lower progress
+    # than its best): the last row of each episode, as deepracer-utils reads it.
+    last = df.sort_values(["episode", "steps"]).groupby("episode")["progress"].last().tolist()
+    assert last == pytest.approx([t["progress"] for t in record["trials"]], abs=1e-6)
 
 
 def test_lockstep_evaluation_drives_each_trial_as_run_trial_does():
@@ -214,13 +278,27 @@ def test_lockstep_evaluation_drives_each_trial_as_run_trial_does():
         count = one_env.task.start_indices(reverse)
         for i in range(2):
             start, seed = round(i * count / 2) % count, 7 + 1000 * i + (500 if reverse else 0)
-            single.append(run_trial(one_env, model, 1, start, reverse, seed, True, None, single_trace, len(single)))
+            single.append(
+                run_trial(
+                    one_env,
+                    model,
+                    1,
+                    start,
+                    reverse,
+                    seed=seed,
+                    deterministic=True,
+                    on_step=None,
+                    recorder=single_trace,
+                    episode=len(single),
+                )
+            )
     assert [t.steps for t in batched] == [t.steps for t in single]
     assert len({t.steps for t in batched}) > 1, "trials of different lengths should run side by side"
     assert batched == single  # status, progress, lap time and every point of every path
     assert batched_trace.take(include_open=True) == single_trace.take(include_open=True)
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_the_evaluator_rides_out_a_short_redis_outage_and_ends_on_a_longer_one(tmp_path, caplog):
     """As the worker and trainer do: a Redis restart shorter than ``outage_s`` pauses the evaluator (it then evaluates
     the version published after it), an outage longer than ``outage_s`` ends it with OutageError."""
@@ -233,9 +311,10 @@ def test_the_evaluator_rides_out_a_short_redis_outage_and_ends_on_a_longer_one(t
 
     from common.action_space import ActionSpace
     from common.keys import Keys
-    from common.policy import action_space_spec, build_policy, checkpoint_to_bytes
+    from common.policy import action_space_spec, build_policy
     from common.protocol import PolicyVersion
     from common.retry import OutageError
+    from common.weights import checkpoint_to_bytes
     from model_store.runs import checkpoint_key
     from racer.embedded_redis import EmbeddedRedis, free_port
     from tests.faults import wait_for
@@ -301,7 +380,8 @@ def test_greedy_action_expected_is_refused_for_a_discrete_space_in_one_line(tmp_
 
 def test_greedy_action_reaches_the_evaluated_policy(tmp_path):
     from common.action_space import ActionSpace
-    from common.policy import action_space_spec, build_policy, checkpoint_to_bytes, load_policy
+    from common.policy import action_space_spec, build_policy
+    from common.weights import checkpoint_to_bytes, load_policy
 
     space = tmp_path / "model_metadata.json"
     space.write_text(
@@ -325,7 +405,17 @@ def test_greedy_action_reaches_the_evaluated_policy(tmp_path):
     from racer.evaluate import run_eval
 
     for rule in ("mean", "expected"):
-        record = run_eval("g", str(tmp_path / "store"), None, "1", [], 1, False, 0.0, greedy_action=rule)
+        record = run_eval(
+            "g",
+            str(tmp_path / "store"),
+            None,
+            checkpoint="1",
+            tracks=[],
+            episodes=1,
+            both_directions=False,
+            action_noise=0.0,
+            greedy_action=rule,
+        )
         assert record["greedy_action"] == rule and record["episodes"] == 1
 
 

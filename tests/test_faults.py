@@ -16,13 +16,14 @@ import time
 from dataclasses import replace
 from functools import partial
 
+import pytest
 import redis
 import torch
 
 from common.defaults import STRAIGHT_TRACK
 from common.keys import Keys
-from common.policy import state_dict_from_bytes
 from common.protocol import ProtocolError, decode_segment, encode_segment
+from common.weights import state_dict_from_bytes
 from model_store import RunStore, open_store
 from racer.embedded_redis import EmbeddedRedis, free_port
 from tests.conftest import S3_BUCKET
@@ -68,6 +69,7 @@ def newest_optimizer(runs: RunStore, run_id: str) -> bytes:
     raise AssertionError("the latest checkpoint never had its optimizer state")
 
 
+@pytest.mark.slow(reason="a real trainer and worker over Redis")
 def test_worker_killed_mid_segment_is_named_and_a_restarted_worker_rejoins(tmp_path, redis_url):
     run_id = "kill-worker"
     config = write_run(tmp_path, run_id)
@@ -125,6 +127,7 @@ def s3_behind_proxy(s3_server: str, run_id: str) -> tuple[TcpProxy, str, RunStor
     return TcpProxy((host, int(port))), prefix, RunStore(open_store(prefix, s3_server))
 
 
+@pytest.mark.slow(reason="a real trainer and worker over Redis")
 def test_trainer_killed_mid_checkpoint_upload_resumes_with_its_state(tmp_path, redis_url, s3_server):
     run_id = "kill-trainer"
     config = write_run(tmp_path, run_id, keep_checkpoints=100)
@@ -189,6 +192,7 @@ def test_trainer_killed_mid_checkpoint_upload_resumes_with_its_state(tmp_path, r
         proxy.close()
 
 
+@pytest.mark.slow(reason="a real trainer and worker over Redis")
 def test_redis_restart_is_ridden_out_by_trainer_and_worker(tmp_path):
     run_id = "redis-restart"
     config = write_run(tmp_path, run_id)
@@ -219,6 +223,7 @@ def test_redis_restart_is_ridden_out_by_trainer_and_worker(tmp_path):
         server.stop()
 
 
+@pytest.mark.slow(reason="a real trainer and worker over Redis")
 def test_store_outage_during_a_checkpoint_upload_loses_nothing(tmp_path, redis_url, s3_server):
     run_id = "store-outage"
     config = write_run(tmp_path, run_id, keep_checkpoints=100)
@@ -246,6 +251,7 @@ def test_store_outage_during_a_checkpoint_upload_loses_nothing(tmp_path, redis_u
         proxy.close()
 
 
+@pytest.mark.slow(reason="runs racer train with its real processes")
 def test_a_reward_function_failing_mid_run_stops_racer_train_with_one_line(tmp_path, redis_url):
     """User code that passes the start-up check and raises later: the worker stops on it, is not restarted
     (a user error), and racer train ends at once naming the file, the error and the step."""

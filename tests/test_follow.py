@@ -97,9 +97,9 @@ def test_the_done_line_says_what_metrics_jsonl_says(tmp_path: Path) -> None:
     runs = RunStore(LocalStore(tmp_path))
     rows = [{"iteration": 1, "env_steps": 1152, "policy_version": 1}, {"iteration": 2, "env_steps": 2304}]
     runs.write_file("r", "metrics.jsonl", "".join(json.dumps(r) + "\n" for r in rows))
-    assert done_line(runs, "r", 61.4) == "done: 2 iterations, 2,304 env steps in 61 s"
+    assert done_line(runs, "r", 61.4) == "done: 2 iterations, trained on 2,304 env steps in 61 s"
     runs.write_file("q", "config.json", "{}")
-    assert done_line(runs, "q", 9.0) == "done: 0 iterations, 0 env steps in 9 s"
+    assert done_line(runs, "q", 9.0) == "done: 0 iterations, trained on 0 env steps in 9 s"
 
 
 # --- racer check --from-drfc ---------------------------------------------------------------------------------------
@@ -200,10 +200,12 @@ def test_a_piped_table_is_printed_whole(capsys) -> None:
 # --- racer eval --video --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_eval_video_holds_every_trial_or_the_one_chosen_and_says_where(tmp_path: Path) -> None:
     import cv2
 
-    from common.policy import action_space_spec, build_policy, checkpoint_to_bytes
+    from common.policy import action_space_spec, build_policy
+    from common.weights import checkpoint_to_bytes
     from racer.runconfig import build_run
     from sim.env import RacerEnv
 
@@ -271,6 +273,7 @@ def test_status_finds_a_running_train_by_its_run_id_or_its_store_alone(tmp_path:
 # --- TensorBoard ---------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow(reason="a real trainer and worker over Redis")
 def test_tensorboard_gets_the_evaluation_scalars(tmp_path: Path, redis_url: str, run_id: str) -> None:
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -342,11 +345,18 @@ def test_train_piped_prints_progress_and_status_answers_from_another_process(tmp
     assert len(progress) >= 3, out
     times = [0.0] + [t for t, _ in progress]
     assert max(b - a for a, b in zip(times, times[1:], strict=False)) < 45, (times, out)
-    assert re.search(r"^Redis: unix://\S+redis.sock", out, re.M), out
+    assert re.search(r"^Redis (6\.2|7)\.[0-9.]+: unix://\S+redis.sock", out, re.M), out
     assert status is not None and status.returncode == 0, (status and status.stdout + status.stderr, out)
-    assert "run piped" in status.stdout and "trainer: iteration" in status.stdout
+    assert "run piped" in status.stdout, status.stdout
+    assert re.search(
+        r"trainer: (collecting segments|updating policy v\d+ \(PPO update running for \d+ s\)); iteration",
+        status.stdout,
+    ), status.stdout
     assert not record.exists(), "the record of a stopped run's Redis is removed"
     rows = RunStore(LocalStore(tmp_path)).read_metrics("piped", missing_ok=True)
     last = rows[-1] if rows else {"iteration": 0, "env_steps": 0}
     done = next(text for _, text in lines if text.startswith("done: "))
-    assert done.startswith(f"done: {last['iteration']} iterations, {last['env_steps']:,} env steps in "), (done, rows)
+    assert done.startswith(f"done: {last['iteration']} iterations, trained on {last['env_steps']:,} env steps in "), (
+        done,
+        rows,
+    )

@@ -15,12 +15,12 @@ import mujoco
 import numpy as np
 import pytest
 
+from common.sensors import SECTOR_LIDAR, lidar_from_ranges
 from sim.lidar import (
     LIDAR_MAX_RANGE,
     LIDAR_MIN_RANGE,
     Lidar,
     LidarSpec,
-    SectorLidar,
     analytic_ranges,
     analytic_scan,
 )
@@ -30,7 +30,6 @@ from sim.world import (
     HIDDEN_GEOM_GROUP,
     OBJECT_GEOM_GROUP,
     build_model,
-    get_objects,
     object_slot_geoms,
     set_objects,
 )
@@ -46,6 +45,22 @@ def world() -> tuple[mujoco.MjModel, mujoco.MjData]:
     physics = CarPhysics(model)
     physics.reset(Pose(0.0, 0.0, 0.0))
     return model, physics.data
+
+
+def sector_observation(lidar: Lidar, pose: Pose, rng: np.random.Generator | None = None) -> np.ndarray:
+    """The SECTOR_LIDAR observation as the env makes it: the scan through the sector filter."""
+    return lidar_from_ranges(SECTOR_LIDAR, lidar.scan(pose, rng))
+
+
+def get_objects(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """The (K, 6) boxes of the slots in use, as :func:`set_objects` took them (from the current kinematics)."""
+    geoms = object_slot_geoms(model)
+    geoms = geoms[model.geom_group[geoms] == OBJECT_GEOM_GROUP]
+    pos = data.geom_xpos[geoms]
+    mat = data.geom_xmat[geoms]
+    yaw = np.arctan2(mat[:, 3], mat[:, 0])
+    size = 2 * model.geom_size[geoms]
+    return np.column_stack([pos[:, 0], pos[:, 1], yaw, size])
 
 
 def box_at(pose: Pose, distance: float, bearing_deg: float, size=OBSTACLE, yaw: float = 0.0) -> list[float]:
@@ -178,7 +193,7 @@ def test_blind_cone_ahead_and_min_range(world) -> None:
     scan = lidar.scan(pose)
     assert scan[31] == -np.inf and np.all(np.isneginf(lidar.scan(pose, np.random.default_rng(0))[31:33]))
     assert lidar.observe(pose)[31] == np.float32(LIDAR_MIN_RANGE)
-    assert SectorLidar(model, data).observe(pose)[3:5].tolist() == [0.0, 0.0]
+    assert sector_observation(lidar, pose)[3:5].tolist() == [0.0, 0.0]
     # Inside the cube map's near clip (0.15 / sqrt(3) m along the face's axis) nothing is drawn: no hit.
     set_objects(model, data, np.array([box_at(pose, 0.28, 180.0, size=(0.4, 0.4, 0.3))]))
     assert lidar.scan(pose)[31] == np.inf
@@ -217,16 +232,16 @@ def test_ranges_are_not_quantized_to_the_range_resolution(world) -> None:
 def test_sector_lidar_sees_a_box_within_half_a_metre(world) -> None:
     model, data = world
     pose = Pose(0.5, 0.5, 2.0)
-    lidar = SectorLidar(model, data)
+    lidar = Lidar(model, data)
     set_objects(model, data, np.array([box_at(pose, 0.6, 180.0)]))  # face at 0.4 m behind: sectors 3 and 4
-    obs = lidar.observe(pose, np.random.default_rng(0))
+    obs = sector_observation(lidar, pose, np.random.default_rng(0))
     assert obs.shape == (8,) and obs.dtype == np.float32
     np.testing.assert_array_equal(obs, [0, 0, 0, 1, 1, 0, 0, 0])
     set_objects(model, data, np.array([box_at(pose, 0.9, 180.0)]))  # face at 0.7 m: none
-    np.testing.assert_array_equal(lidar.observe(pose), np.zeros(8))
+    np.testing.assert_array_equal(sector_observation(lidar, pose), np.zeros(8))
     # To the left (sector k spans 30° + 37.5° k to 30° + 37.5° (k + 1)), face at 0.25 m, ±31° wide.
     set_objects(model, data, np.array([box_at(pose, 0.45, 90.0)]))
-    np.testing.assert_array_equal(lidar.observe(pose), [1, 1, 1, 0, 0, 0, 0, 0])
+    np.testing.assert_array_equal(sector_observation(lidar, pose), [1, 1, 1, 0, 0, 0, 0, 0])
 
 
 # --- object slots in the world --------------------------------------------------------------------------

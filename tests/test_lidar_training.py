@@ -21,9 +21,10 @@ import pytest
 
 from common.action_space import load_action_space
 from common.defaults import STRAIGHT_TRACK
-from common.policy import action_space_spec, build_policy, checkpoint_to_bytes, load_policy
+from common.policy import action_space_spec, build_policy
 from common.protocol import decode_segment, encode_segment
 from common.sensors import LIDARS, check_lidar, observation_spec, split_observation
+from common.weights import checkpoint_to_bytes, load_policy
 from deploy.export import export_onnx
 from model_store import RunStore, open_store
 from model_store.localize import localize_env
@@ -92,6 +93,7 @@ def start(run_id: str, redis_url: str, store: str, meta: str, hp: str) -> tuple[
     return trainer, worker
 
 
+@pytest.mark.slow(reason="many cases, each a real env: over 6 s in all")
 @pytest.mark.parametrize(("sensors", "actions", "stack_size"), RUNS)
 def test_a_lidar_run_pushes_lidar_segments_the_trainer_accepts_and_trains_on(
     sensors, actions, stack_size, redis_url, run_id, tmp_path
@@ -101,20 +103,21 @@ def test_a_lidar_run_pushes_lidar_segments_the_trainer_accepts_and_trains_on(
     store = str(tmp_path / "store")
     trainer, worker = start(run_id, redis_url, store, meta, hp)
     try:
-        assert trainer.obs_spec == spec and trainer.obs_shape == spec.camera_shape((120, 160))
+        learner = trainer.learner
+        assert learner.obs_spec == spec and learner.obs_shape == spec.camera_shape((120, 160))
         assert trainer.model.lidar_size == spec.lidar_size == LIDARS[sensors[1]].size
         [seg] = worker.collect()
         a = seg.arrays
-        assert a["obs"].shape == (16, *trainer.obs_shape) and a["next_obs"].shape == (1, *trainer.obs_shape)
+        assert a["obs"].shape == (16, *learner.obs_shape) and a["next_obs"].shape == (1, *learner.obs_shape)
         assert a["lidar"].shape == (16, spec.lidar_size) and a["next_lidar"].shape == (1, spec.lidar_size)
         assert check_lidar(spec.lidar, a["lidar"]) is None and check_lidar(spec.lidar, a["next_lidar"]) is None
         # What goes on the wire decodes to the same arrays (the trainer's check, against the run's sensors).
-        wire = decode_segment(encode_segment(seg), run_id, trainer.obs_shape, trainer.n_actions, spec.lidar)
+        wire = decode_segment(encode_segment(seg), run_id, learner.obs_shape, learner.n_actions, spec.lidar)
         assert np.array_equal(wire.arrays["lidar"], a["lidar"])
 
         worker.push([seg])
         assert trainer.read(block_ms=500) == 1
-        assert "lidar" in trainer.buffer[0].arrays
+        assert "lidar" in trainer.intake.buffer[0].arrays
         for _ in range(60):
             if trainer.ready():
                 break
@@ -132,6 +135,7 @@ def test_a_lidar_run_pushes_lidar_segments_the_trainer_accepts_and_trains_on(
         worker.close()
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_the_evaluator_drives_a_stereo_lidar_checkpoint(redis_url, run_id, tmp_path):
     sensors, actions, stack_size = RUNS[0]
     meta, hp = write_files(tmp_path, sensors, actions, stack_size)
@@ -155,15 +159,16 @@ def test_the_evaluator_drives_a_stereo_lidar_checkpoint(redis_url, run_id, tmp_p
         camera, lidar = split_observation(observation)
         seen.append((camera.shape, lidar.shape))
 
-    trial = run_trial(env, model, stack_size, 0, False, 1, True, on_step)
+    trial = run_trial(env, model, stack_size, 0, False, seed=1, deterministic=True, on_step=on_step)
     env.close()
     assert trial.steps >= 1 and len(seen) == trial.steps + 1 and set(seen) == {((120, 160, 2), (64,))}
 
     # racer eval's video: the stereo pair and the LiDAR, as the policy sees them.
-    video = write_video(runs, trainer.run, env_cfg, 0, settings, tmp_path / "eval.mp4")
+    video = write_video(runs, trainer.run, env_cfg, 0, settings, path=tmp_path / "eval.mp4")
     assert video["frames"] >= 2 and (tmp_path / "eval.mp4").stat().st_size > 0
 
 
+@pytest.mark.slow(reason="starts real racer processes")
 def test_racer_car_drives_a_stereo_model_from_two_cameras(tmp_path):
     """``racer car --right-source``: the exported stereo model reads the left and right cameras in step."""
     meta, hp = write_files(tmp_path, ["STEREO_CAMERAS"], DISCRETE, 1)

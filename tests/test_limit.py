@@ -156,6 +156,7 @@ def test_a_car_that_holds_one_curvature_at_every_speed_still_gets_a_line() -> No
     assert v[2] == pytest.approx(3.0 * (2.0 / 4.0) ** 2, rel=1e-4)
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_the_gazebo_cars_line_uses_the_track() -> None:
     """The Gazebo car's curvature table is flat over several speeds; a piecewise-linear speed(curvature) then had
     vertical steps on which the line search stopped after 30 iterations, 7 cm from the centre line, and the
@@ -175,6 +176,7 @@ def test_the_gazebo_cars_line_uses_the_track() -> None:
     assert np.max(np.abs(line.curvature)) <= max(lim.max_curvature) * 1.02
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_the_racing_line_stays_in_the_corridor_and_beats_the_centre_line(limits: CarLimits) -> None:
     track = load_track(DEFAULT_TRACK)
     line = racing_line(track, limits)
@@ -188,6 +190,7 @@ def test_the_racing_line_stays_in_the_corridor_and_beats_the_centre_line(limits:
     assert line.length < track.length  # it cuts the corners
 
 
+@pytest.mark.slow(reason="starts real racer processes")
 @pytest.mark.parametrize(
     "track",
     [
@@ -234,6 +237,7 @@ def test_racer_limit_drives_its_limit_within_5_percent(tmp_path: Path, track: st
     assert "limit" in done.stdout and "driven in the env by a predictive line follower" in done.stdout
 
 
+@pytest.mark.slow(reason="starts real racer processes")
 @pytest.mark.parametrize(
     ("args", "fragment"),
     [
@@ -274,6 +278,7 @@ def test_train_takes_a_car_by_preset_name_and_refuses_an_unknown_one(tmp_path: P
     assert not (tmp_path / "runs").exists()  # nothing written
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_the_steering_time_constant_is_measured_from_the_car() -> None:
     # The default car's servos follow within a control period or so; the Gazebo preset's lag is 0.50 s in its
     # file (fitted on DeepRacer's logs), and the hinge servo behind it adds little.
@@ -290,6 +295,7 @@ def test_the_steering_time_constant_is_measured_from_the_car() -> None:
     assert 0.3 < gazebo.min_turn_radius < 1.0  # the lagging car still has a finite full-lock radius
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 @needs_deepracer_tracks  # the figures below were measured on reInvent2019_track (docs/racing.md)
 def test_the_follower_drives_the_gazebo_cars_lagging_steering_round_its_limit() -> None:
     """Pure pursuit left the track with this car at any look-ahead; the predictive follower must finish the lap
@@ -307,6 +313,7 @@ def test_the_follower_drives_the_gazebo_cars_lagging_steering_round_its_limit() 
     assert 0.95 < lap.lap_time / line.lap_time < 1.08
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 @pytest.mark.parametrize(
     ("track", "pace"),
     [
@@ -338,6 +345,7 @@ def test_the_follower_keeps_the_gazebo_car_on_track_at_and_below_its_limit(track
     assert lap.lap_time / line.lap_time < 1.0 / pace + 0.08
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_the_follower_slows_only_the_stretch_before_where_a_try_left(limits: CarLimits) -> None:
     """A try that leaves the track slows the 4 m before that place (and 0.5 m after), not the lap."""
     from sim.follower import SLOW_AFTER_M, SLOW_BEFORE_M, _stretch_before
@@ -360,6 +368,7 @@ def test_the_speed_command_leads_a_lagging_servo_to_the_profile() -> None:
     assert lead_speed(2.0, 2.0, 0.173, 0.12) == 2.0  # on the profile: hold it
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_the_follower_commands_the_lead_speed_within_the_cars_range(limits: CarLimits) -> None:
     from sim.follower import SPEED_LEAD_S, LineFollower, lead_speed
     from sim.physics import SPEED_RANGE_MPS
@@ -381,6 +390,7 @@ def test_the_follower_commands_the_lead_speed_within_the_cars_range(limits: CarL
     assert lagging._speed_command(follower._s[cruise], 0.0, standing * 0 + 3.9) == limits.max_command_speed
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_the_follower_reads_the_profiles_squared_speed_from_a_standing_start(limits: CarLimits) -> None:
     """Between two points of constant acceleration v² is linear in distance: a third of the way from rest to
     v1 the profile's speed is v1 / sqrt(3), not v1 / 3 (which left the default car waiting at the start)."""
@@ -393,6 +403,7 @@ def test_the_follower_reads_the_profiles_squared_speed_from_a_standing_start(lim
     assert float(follower._paced(s1 / 3, line.speed)) == pytest.approx(v1 / np.sqrt(3.0), rel=1e-9)
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_the_follower_measures_the_cars_distance_along_the_line_not_the_nearest_points(limits: CarLimits) -> None:
     """A point 3 cm ahead of line point 50 along the line's direction (and 10 cm to its side) is 3 cm further on;
     beyond half the spacing to the next point the distance is that of the halfway point (it is nearer the next)."""
@@ -409,6 +420,7 @@ def test_the_follower_measures_the_cars_distance_along_the_line_not_the_nearest_
     assert follower._along(p - 0.5 * tangent, 50) == pytest.approx(follower._s[50] - half)
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_a_lap_outside_the_lines_corridor_is_found_where_it_first_leaves(limits: CarLimits) -> None:
     from sim.follower import _outside_corridor
 
@@ -422,6 +434,7 @@ def test_a_lap_outside_the_lines_corridor_is_found_where_it_first_leaves(limits:
     assert np.array_equal(_outside_corridor(line, path), path[70])
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_a_lap_that_leaves_the_corridor_is_driven_again_and_the_fastest_is_kept(limits: CarLimits) -> None:
     """On a corridor 2 cm wide about the line no car stays inside: the lap is tried CORRIDOR_TRIES more times, each
     slower before where the last left it, and the lap reported is the fastest, at least as fast as the first."""
@@ -444,6 +457,7 @@ def test_a_lap_that_leaves_the_corridor_is_driven_again_and_the_fastest_is_kept(
         assert lap.lap_time <= first.lap_time
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_the_followers_k_d_tree_finds_the_same_costs_as_all_pairs(limits: CarLimits) -> None:
     """A plan's thousands of points are matched to the line with a k-d tree; the cost must be the all-pairs one."""
     from sim.follower import KD_TREE_MIN_POINTS, LineFollower
@@ -460,6 +474,7 @@ def test_the_followers_k_d_tree_finds_the_same_costs_as_all_pairs(limits: CarLim
     np.testing.assert_allclose(tree, pairs, rtol=1e-12, atol=1e-15)
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_the_followers_check_stops_losing_trials_early_and_still_picks_the_cheapest(limits: CarLimits) -> None:
     """The simulator check stops driving a trial once its summed cost passes the best so far; its choice must be
     the one a full drive of every trial gives."""
@@ -488,6 +503,7 @@ def test_the_followers_check_stops_losing_trials_early_and_still_picks_the_cheap
         env.close()
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_a_retry_replays_the_steps_its_slower_stretch_leaves_unchanged(limits: CarLimits) -> None:
     """A retry replays the earlier try's commands up to the first one that read a slowed point of the pace, then
     plans: the lap must be the one a retry planned from the start drives, and the replay must cover part of it."""
@@ -514,6 +530,7 @@ def test_a_retry_replays_the_steps_its_slower_stretch_leaves_unchanged(limits: C
     assert [len(r) for r in again.reads[:same]] == [len(r) for r in record.reads[:same]]
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_measured_limits_are_kept_per_car_and_top_command_and_a_bad_file_is_measured_again(tmp_path: Path) -> None:
     """``racer limit`` measures a car once (4-8 s of every run): the same car and top command read the figures
     back; another car or top command measures; a file that is not limits is measured again and replaced; a folder
@@ -545,6 +562,7 @@ def test_measured_limits_are_kept_per_car_and_top_command_and_a_bad_file_is_meas
     assert cached_limits(None, 2.0, blocked) == (first, False)
 
 
+@pytest.mark.slow(reason="drives the car round a track at its limit")
 def test_a_car_whose_steering_lags_gets_the_wider_simulator_check() -> None:
     """±3° for a car whose wheels lag more than 0.25 s (the Gazebo car: within 5 % on 9 loops, not 7), ±2° for one
     whose wheels follow at once (±3° took the default car 8.4 % over its limit on Bowtie_track)."""

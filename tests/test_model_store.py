@@ -98,6 +98,7 @@ def test_local_store_creates_its_root_on_first_write_and_leaves_no_temp_files(tm
     assert [p.name for p in (tmp_path / "deep" / "root" / "k").iterdir()] == ["v"]
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_s3_list_pages_past_1000_keys(s3_endpoint):
     store = S3Store(BUCKET, f"page-{uuid.uuid4().hex}", s3_endpoint)
     keys = [f"many/{i:05d}" for i in range(1005)]
@@ -154,6 +155,7 @@ def test_nonexistent_bucket_is_a_store_error_naming_it(s3_endpoint):
         assert SECRET not in str(info.value)
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_unreachable_endpoint_fails_fast_with_cannot_reach(s3_endpoint):
     endpoint = f"http://user:hunter2@127.0.0.1:{_free_port()}"
     store = S3Store(BUCKET, "", endpoint)  # the default config: 5 attempts, but a refused connect is instant

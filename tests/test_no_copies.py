@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tests.shared_data import REPO, SHARED_DATA, shared_data
 
@@ -281,6 +282,7 @@ def test_tests_data_community_is_gone():
     )
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_no_file_in_the_tree_copies_shared_data():
     shared_data()
     index = shared_index()

@@ -110,6 +110,7 @@ def check_objects_seen(seen: list[dict], count: int) -> None:
         assert call["crashed"] == (call["status"] == "crashed"), call
 
 
+@pytest.mark.slow(reason="many cases, each a real env: over 6 s in all")
 @pytest.mark.parametrize("track", TRACKS)
 @pytest.mark.parametrize("reward", REWARDS)
 def test_oa_functions_run_unchanged_with_boxes(reward: str, track: str, capsys) -> None:

@@ -30,7 +30,7 @@ from common.race import (
     race_config_from_drfc,
 )
 from sim.bots import CONTROL_DT_S, BotCars, RaceSetupError, object_progress, pause_steps
-from sim.object_params import OBJECT_PARAM_KEYS, empty_object_params, in_camera_view, object_params
+from sim.object_params import OBJECT_PARAM_KEYS, in_camera_view, object_params
 from sim.obstacles import (
     BOT_CAR,
     BOT_CAR_OBSTACLE,
@@ -152,7 +152,6 @@ def test_time_trial_gives_the_simapp_defaults(loop):
         "objects_distance_from_center": [],
         "objects_distance": [],
     }
-    assert empty_object_params() == defaults
     assert set(OBJECT_PARAM_KEYS) == set(defaults) and set(OBJECT_PARAM_KEYS) < set(PARAM_KEYS)
     assert "is_crashed" in PARAM_KEYS and not is_crashed(pose_at(loop, 0.1), [])
 

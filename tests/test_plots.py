@@ -8,10 +8,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
 from common.defaults import DEFAULT_TRACK
-from common.errors import UserError
+from common.errors import OptionError, UserError
 from model_store import LocalStore, ObjectStore, RunStore, open_store
+from racer.cli import app
+from racer.commands.options import checkpoint_choice
 from racer.plots import (
     DPI,
     TRAINING_FIGSIZE,
@@ -205,3 +208,75 @@ def test_plot_run_reads_an_s3_store(tmp_path, run_id, s3_server):
     paths = plot_run(run_id, runs, tmp_path)
     assert [p.name for p in paths] == ["training.png", "trajectories.png"]
     read_png(paths[1], TRAJECTORY_FIGSIZE)
+
+
+# -- racer plot --checkpoint: the best checkpoint by default -----------------------------------------------------------
+
+
+def write_run_with_checkpoints(root: Path, run_id: str) -> RunStore:
+    """:func:`write_run` plus tiny checkpoints 4 and 8 (8 the latest) and the evaluator's ``best`` pointer on 4.
+
+    The pointer, not the evaluation files' scores, is the evaluator's choice (8 scores higher here): only it can
+    tell a plot of the best from one of the best-scored or the newest."""
+    runs = write_run(root, run_id)
+    for version in (4, 8):
+        runs.save_checkpoint(run_id, version, f"weights-{version}".encode(), {"env_steps": 450 * version})
+    runs.set_pointer(run_id, "best", 4)
+    return runs
+
+
+def plot_cli(store: Path, run_id: str, out: Path, *args: str):
+    return CliRunner().invoke(app, ["plot", run_id, "--store", str(store), "--out", str(out), *args])
+
+
+def test_racer_plot_draws_the_best_checkpoint_by_default(tmp_path, run_id):
+    runs = write_run_with_checkpoints(tmp_path / "store", run_id)
+    best = [c["version"] for c in runs.list_checkpoints(run_id) if c["best"]]
+    assert best == [4] and runs.resolve(run_id, "latest") == 8  # as `racer models ls` shows them
+    done = plot_cli(tmp_path / "store", run_id, tmp_path / "out")
+    assert done.exit_code == 0, done.output
+    drawn = read_png(tmp_path / "out" / "trajectories.png", TRAJECTORY_FIGSIZE)
+    four = read_png(plot_trajectories(run_id, runs, tmp_path / "v4.png", version=4), TRAJECTORY_FIGSIZE)
+    assert np.array_equal(drawn, four)
+
+
+def test_plot_run_draws_the_checkpoint_asked_for(tmp_path, run_id):
+    runs = write_run_with_checkpoints(tmp_path / "store", run_id)
+    eight = read_png(plot_trajectories(run_id, runs, tmp_path / "v8.png", version=8), TRAJECTORY_FIGSIZE)
+    for checkpoint in ("latest", 8):
+        paths = plot_run(run_id, runs, tmp_path / str(checkpoint), checkpoint=checkpoint)
+        assert np.array_equal(read_png(paths[1], TRAJECTORY_FIGSIZE), eight)
+    with pytest.raises(UserError, match="checkpoint 5"):
+        plot_run(run_id, runs, tmp_path / "five", checkpoint=5)
+
+
+def test_a_checkpoint_is_best_latest_or_a_version_number():
+    given = ("best", "latest", "LATEST", "12", "0")
+    assert [checkpoint_choice(t) for t in given] == ["best", "latest", "latest", 12, 0]
+    for bad in ("bets", "-1", "1.5", "", "1000000000"):
+        with pytest.raises(OptionError) as info:
+            checkpoint_choice(bad)
+        message = str(info.value)
+        assert "--checkpoint" in message and repr(bad) in message and "\n" not in message
+
+
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
+def test_racer_plot_checkpoint_picks_the_evaluation_drawn(tmp_path, run_id):
+    runs = write_run_with_checkpoints(tmp_path / "store", run_id)
+    four = read_png(plot_trajectories(run_id, runs, tmp_path / "v4.png", version=4), TRAJECTORY_FIGSIZE)
+    eight = read_png(plot_trajectories(run_id, runs, tmp_path / "v8.png", version=8), TRAJECTORY_FIGSIZE)
+    for checkpoint, expected in (("best", four), ("latest", eight), ("8", eight), ("4", four)):
+        out = tmp_path / f"out-{checkpoint}"
+        done = plot_cli(tmp_path / "store", run_id, out, "--checkpoint", checkpoint)
+        assert done.exit_code == 0, done.output
+        assert np.array_equal(read_png(out / "trajectories.png", TRAJECTORY_FIGSIZE), expected), checkpoint
+
+
+@pytest.mark.parametrize("bad", ["bets", "-1", "1.5"])
+def test_racer_plot_bad_checkpoint_is_a_one_line_error(tmp_path, run_id, bad):
+    write_run_with_checkpoints(tmp_path / "store", run_id)
+    done = plot_cli(tmp_path / "store", run_id, tmp_path / "out", "--checkpoint", bad)
+    assert done.exit_code == 2
+    err = done.stderr.strip()
+    assert len(err.splitlines()) == 1 and "--checkpoint" in err and repr(bad) in err, err
+    assert not (tmp_path / "out").exists()  # refused before anything is drawn

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import functools
-import io
-from pathlib import Path
 from unittest import mock
 
 import numpy as np
@@ -18,19 +16,12 @@ from common.action_space import ContinuousSpace, Range, default_action_space
 from common.policy import (
     HIDDEN,
     ActorCritic,
-    CheckpointError,
     PolicyConfig,
-    acting_from_bytes,
-    acting_to_bytes,
     action_space_spec,
     build_policy,
     censored_mean,
-    checkpoint_from_bytes,
-    checkpoint_to_bytes,
     conv_output_shape,
     network_from_metadata,
-    state_dict_from_bytes,
-    state_dict_to_bytes,
 )
 
 DISCRETE = {"kind": "discrete", "n": 10}
@@ -38,7 +29,8 @@ CONTINUOUS = {"kind": "continuous", "low": [-30.0, 0.5], "high": [30.0, 4.0]}
 SMALL = (36, 36, 1)  # the smallest frames the shallow trunk takes: fast tests of everything but shapes
 
 
-def _obs(batch: int, shape: tuple[int, int, int], seed: int = 0) -> np.ndarray:
+def random_frames(batch: int, shape: tuple[int, int, int], seed: int = 0) -> np.ndarray:
+    """``batch`` uint8 frames of ``shape``, uniformly random (seeded)."""
     return np.random.default_rng(seed).integers(0, 256, (batch, *shape), dtype=np.uint8)
 
 
@@ -70,7 +62,7 @@ FULL_SIZE = [
 @pytest.mark.parametrize(("network", "kind", "stack"), FULL_SIZE)
 def test_output_shapes(network: str, kind: str, stack: int) -> None:
     model = _full_size(network, kind, stack)
-    obs = torch.from_numpy(_obs(3, (120, 160, stack)))
+    obs = torch.from_numpy(random_frames(3, (120, 160, stack)))
     params, value = model(obs)
     width = 10 if kind == "discrete" else 2
     assert params.shape == (3, width) and value.shape == (3,)
@@ -119,7 +111,7 @@ def test_conv_output_shape_checks_frame_size() -> None:
 def test_act_numpy_discrete_consistent_with_evaluate() -> None:
     torch.manual_seed(1)
     model = build_policy(SMALL, DISCRETE)
-    obs = _obs(5, SMALL)
+    obs = random_frames(5, SMALL)
     actions, logp, values = model.act_numpy(obs)
     assert actions.dtype == np.int64 and actions.shape == (5,) and ((actions >= 0) & (actions < 10)).all()
     assert logp.dtype == values.dtype == np.float32 and logp.shape == values.shape == (5,)
@@ -132,7 +124,7 @@ def test_act_numpy_discrete_consistent_with_evaluate() -> None:
 def test_act_numpy_continuous_consistent_with_evaluate() -> None:
     torch.manual_seed(2)
     model = build_policy(SMALL, CONTINUOUS)
-    obs = _obs(5, SMALL)
+    obs = random_frames(5, SMALL)
     actions, logp, _ = model.act_numpy(obs)
     assert actions.dtype == np.float32 and actions.shape == (5, 2) and np.isfinite(actions).all()
     with torch.no_grad():
@@ -143,7 +135,7 @@ def test_act_numpy_continuous_consistent_with_evaluate() -> None:
 
 def test_continuous_starts_mid_range_with_half_range_std() -> None:
     model = build_policy(SMALL, CONTINUOUS)
-    dist = model.distribution(torch.from_numpy(_obs(4, SMALL)))
+    dist = model.distribution(torch.from_numpy(random_frames(4, SMALL)))
     # The 0.01-gain head starts near 0, i.e. near the middle of [-30, 30] and [0.5, 4].
     np.testing.assert_allclose(dist.mean.detach().numpy(), [[0.0, 2.25]] * 4, atol=0.2)
     np.testing.assert_allclose(dist.stddev.detach().numpy(), [[30.0, 1.75]] * 4, rtol=1e-6)
@@ -151,7 +143,7 @@ def test_continuous_starts_mid_range_with_half_range_std() -> None:
 
 def test_deterministic_act_picks_argmax() -> None:
     model = build_policy(SMALL, DISCRETE)
-    obs = _obs(4, SMALL)
+    obs = random_frames(4, SMALL)
     with torch.no_grad():
         model.policy_head.bias[7] = 5.0  # make action 7 the most likely by far
     actions, logp, _ = model.act_numpy(obs, deterministic=True)
@@ -163,7 +155,7 @@ def test_deterministic_act_picks_argmax() -> None:
 
 def test_deterministic_continuous_act_is_the_mean() -> None:
     model = build_policy(SMALL, CONTINUOUS)
-    obs = _obs(2, SMALL)
+    obs = random_frames(2, SMALL)
     actions, _, _ = model.act_numpy(obs, deterministic=True)
     mean, _ = model(torch.from_numpy(obs))
     np.testing.assert_allclose(actions, mean.detach().numpy(), atol=1e-6)
@@ -196,7 +188,7 @@ def test_censored_mean_is_the_mean_of_the_clipped_samples() -> None:
 
 def test_greedy_expected_takes_the_censored_mean() -> None:
     model = build_policy(SMALL, CONTINUOUS, PolicyConfig(greedy_action="expected"))
-    obs = _obs(3, SMALL)
+    obs = random_frames(3, SMALL)
     with torch.no_grad():
         model.policy_head.bias.copy_(torch.tensor([0.0, -2.0]))  # speed mean 2.25 - 2 × 1.75 = -1.25, below 0.5
     actions, _, _ = model.act_numpy(obs, deterministic=True)
@@ -218,7 +210,7 @@ def test_greedy_expected_holds_a_zero_width_range_at_its_value() -> None:
     model = build_policy(SMALL, fixed, PolicyConfig(greedy_action="expected"))
     with torch.no_grad():
         model.policy_head.bias[1] = 0.5  # the speed's Gaussian at 2.5 m/s, std 1 (the unit scale): off the range
-    actions, _, _ = model.act_numpy(_obs(3, SMALL), deterministic=True)
+    actions, _, _ = model.act_numpy(random_frames(3, SMALL), deterministic=True)
     np.testing.assert_allclose(actions[:, 1], 2.0, atol=1e-6)
     assert "action_low" not in model.state_dict() and "action_high" not in model.state_dict()
 
@@ -241,7 +233,7 @@ def test_batch_norm_and_dropout_flags() -> None:
     assert sum(isinstance(m, nn.BatchNorm2d) for m in with_bn.modules()) == 3  # one after each conv
     assert nn.Dropout in kinds(PolicyConfig(dropout=0.2))
     model = build_policy(SMALL, DISCRETE, PolicyConfig(batch_norm=True, dropout=0.2)).eval()
-    actions, logp, values = model.act_numpy(_obs(2, SMALL))
+    actions, logp, values = model.act_numpy(random_frames(2, SMALL))
     assert np.isfinite(logp).all() and np.isfinite(values).all()
 
 
@@ -280,116 +272,6 @@ def test_bad_inputs_rejected() -> None:
         model(torch.zeros(1, 40, 36, 1, dtype=torch.uint8))
 
 
-def _assert_same(a: object, b: object) -> None:
-    """Deep equality of nested dicts/lists of tensors and plain values."""
-    if isinstance(a, torch.Tensor):
-        assert isinstance(b, torch.Tensor) and a.dtype == b.dtype and torch.equal(a, b)
-    elif isinstance(a, dict):
-        assert isinstance(b, dict) and a.keys() == b.keys()
-        for key in a:
-            _assert_same(a[key], b[key])
-    elif isinstance(a, list | tuple):
-        assert len(a) == len(b)
-        for x, y in zip(a, b, strict=True):
-            _assert_same(x, y)
-    else:
-        assert a == b
-
-
-def test_state_dict_round_trip() -> None:
-    model = build_policy(SMALL, CONTINUOUS, PolicyConfig(batch_norm=True))
-    sd = state_dict_from_bytes(state_dict_to_bytes(model.state_dict()))
-    _assert_same(model.state_dict(), sd)
-    other = build_policy(SMALL, CONTINUOUS, PolicyConfig(batch_norm=True))
-    other.load_state_dict(sd)
-    obs = torch.from_numpy(_obs(2, SMALL))
-    model.eval()
-    other.eval()
-    torch.testing.assert_close(model(obs), other(obs), rtol=0, atol=0)
-
-
-def test_checkpoint_round_trip_with_optimizer() -> None:
-    model = build_policy(SMALL, DISCRETE)
-    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
-    logp, _, value = model.evaluate(torch.from_numpy(_obs(2, SMALL)), torch.tensor([0, 1]))
-    (value.sum() - logp.sum()).backward()
-    optimizer.step()  # so that the optimizer has state to save
-    model_sd, optimizer_sd = checkpoint_from_bytes(checkpoint_to_bytes(model.state_dict(), optimizer.state_dict()))
-    _assert_same(model.state_dict(), model_sd)
-    _assert_same(optimizer.state_dict(), optimizer_sd)
-    assert checkpoint_from_bytes(checkpoint_to_bytes(model.state_dict(), None))[1] is None
-
-
-class _PickleBomb:
-    """Unpickling this opens (creates) a file: what a malicious checkpoint could do."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = str(path)
-
-    def __reduce__(self) -> tuple:
-        return (open, (self.path, "w"))
-
-
-def test_pickle_bomb_refused(tmp_path: Path) -> None:
-    target = tmp_path / "pwned"
-    buf = io.BytesIO()
-    torch.save({"model": {"w": torch.zeros(2)}, "optimizer": _PickleBomb(target)}, buf)
-    with pytest.raises(CheckpointError, match="io.open"):
-        checkpoint_from_bytes(buf.getvalue())
-    with pytest.raises(CheckpointError):
-        state_dict_from_bytes(buf.getvalue())
-    assert not target.exists()
-    # The bomb is real: an unrestricted torch.load would have created the file.
-    torch.load(io.BytesIO(buf.getvalue()), weights_only=False)
-    assert target.exists()
-
-
-@pytest.mark.parametrize("data", [b"", b"not a checkpoint", state_dict_to_bytes({"w": torch.zeros(1)})[:40]])
-def test_corrupt_bytes_refused(data: bytes) -> None:
-    with pytest.raises(CheckpointError):
-        checkpoint_from_bytes(data)
-
-
-def test_checkpoint_structure_checked() -> None:
-    with pytest.raises(CheckpointError, match="'model'"):
-        checkpoint_from_bytes(state_dict_to_bytes({"w": torch.zeros(1)}))
-    with pytest.raises(CheckpointError, match="state dict"):
-        state_dict_from_bytes(state_dict_to_bytes([torch.zeros(1)]))  # type: ignore[arg-type]
-
-
-def test_load_policy_gives_the_saved_weights_in_eval_mode(tmp_path: Path) -> None:
-    """The one loader of a stored checkpoint for acting: by version, pointer or decimal string, from a RunConfig or
-    the run id (its config.json), it gives exactly the weights saved (batch-norm statistics too), in eval mode."""
-    from common.config import RunConfig
-    from common.hyperparams import Hyperparameters
-    from common.policy import load_policy
-    from model_store import LocalStore, RunStore, StoreKeyError
-
-    runs = RunStore(LocalStore(tmp_path))
-    cfg = PolicyConfig(batch_norm=True, dropout=0.2, stack_size=2)
-    run = RunConfig(run_id="p", hyperparams=Hyperparameters(stack_size=2), policy=cfg)
-    runs.write_config(run)
-    actions = default_action_space()
-    saved = []
-    for version in (0, 1):
-        torch.manual_seed(version)
-        model = build_policy((*SMALL[:2], 2), action_space_spec(actions), cfg).train()
-        model(torch.from_numpy(_obs(4, (*SMALL[:2], 2), version)))  # moves the batch-norm running statistics
-        runs.save_checkpoint("p", version, checkpoint_to_bytes(model.state_dict()), {"env_steps": 10 * version})
-        saved.append(model.state_dict())
-    runs.set_pointer("p", "best", 0)
-    for source in (run, "p"):
-        for checkpoint, version in ((0, 0), ("1", 1), ("latest", 1), ("best", 0)):
-            loaded, meta = load_policy(runs, source, actions, checkpoint, frame=SMALL[:2])
-            assert not loaded.training and loaded.obs_shape == (*SMALL[:2], 2)
-            assert meta["version"] == version and meta["env_steps"] == 10 * version
-            state = loaded.state_dict()
-            assert state.keys() == saved[version].keys()
-            assert all(torch.equal(state[k], saved[version][k]) for k in state)
-    with pytest.raises(StoreKeyError, match="checkpoint 7"):
-        load_policy(runs, run, actions, 7, frame=SMALL[:2])
-
-
 def test_a_front_camera_network_keeps_the_state_dict_of_checkpoints_before_lidar() -> None:
     """Old checkpoints load: a camera-only network is one ``trunk`` Sequential (convs, Flatten, [Dropout], dense 512)
     with the same keys and shapes as before other sensors existed; the sensors default to the front camera."""
@@ -420,66 +302,6 @@ def test_a_front_camera_network_keeps_the_state_dict_of_checkpoints_before_lidar
 
 
 # --- the acting copy: what rollout workers download per policy version ----------------------------------------------
-
-
-@functools.cache
-def _driven_frames() -> np.ndarray:
-    """200 real camera frames of the default run, driven by its untrained network (racer/bench/wire.py)."""
-    from racer.bench.wire import driven_segments
-
-    return np.concatenate([s.arrays["obs"] for s in driven_segments(steps=50, segments=4, seed=1)])
-
-
-def _greedy_and_logits(model: ActorCritic, frames: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-    model.eval()
-    with torch.no_grad():
-        logits, _ = model(torch.from_numpy(frames))
-    return model.greedy(logits), logits
-
-
-def test_the_acting_copy_takes_the_checkpoints_greedy_actions() -> None:
-    """On 200 real frames, the float16 acting copy (back in float32) picks the same greedy action as the float32
-    weights of the untrained default network (the network of every run's first iteration). A flip would need a
-    top-two logit gap below the copy's logit error (~1e-5 here, logits ~3e-3 in size): a near-tie, where either
-    action is the policy's choice to within float16. Fixed seeds: the same frames and weights every run."""
-    torch.manual_seed(0)
-    model = build_policy((120, 160, 1), DISCRETE)
-    frames = _driven_frames()
-    copy = build_policy((120, 160, 1), DISCRETE)
-    copy.load_state_dict(acting_from_bytes(acting_to_bytes(model.state_dict())))
-    greedy, logits = _greedy_and_logits(model, frames)
-    copy_greedy, copy_logits = _greedy_and_logits(copy, frames)
-    assert len(frames) == 200 and len(set(greedy.tolist())) > 1  # not one action for every frame
-    assert torch.equal(greedy, copy_greedy)
-    assert (logits - copy_logits).abs().max() < 1e-2 * logits.abs().mean()
-
-
-def test_the_acting_copy_is_half_the_checkpoint_and_weights_only(tmp_path: Path) -> None:
-    """Float16 matrices and kernels, everything else as it was (bit for bit), no optimizer; at most 12 MB for the
-    default network; read with weights_only, so a pickle bomb is refused as in checkpoints."""
-    torch.manual_seed(0)
-    model = build_policy((120, 160, 1), CONTINUOUS, PolicyConfig(batch_norm=True))
-    sd = model.state_dict()
-    data = acting_to_bytes(sd)
-    assert len(data) <= 12_000_000 and len(data) < 0.51 * len(checkpoint_to_bytes(sd))
-    raw = torch.load(io.BytesIO(data), weights_only=True)["acting"]
-    for name, tensor in sd.items():
-        half = tensor.is_floating_point() and tensor.dim() >= 2
-        assert raw[name].dtype == (torch.float16 if half else tensor.dtype), name
-    back = acting_from_bytes(data)
-    assert back.keys() == sd.keys() and all(t.dtype == sd[k].dtype for k, t in back.items())
-    for name in ("log_std", "trunk.0.bias", "trunk.1.running_var", "trunk.1.num_batches_tracked"):
-        assert torch.equal(back[name], sd[name]), name
-    big = {"w": torch.full((2, 2), 1e6), "v": torch.ones(2, 2)}  # beyond float16: kept in float32
-    assert acting_from_bytes(acting_to_bytes(big))["w"][0, 0] == 1e6
-    with pytest.raises(CheckpointError, match="acting copy"):
-        acting_from_bytes(checkpoint_to_bytes(sd))
-    target = tmp_path / "pwned"
-    buf = io.BytesIO()
-    torch.save({"acting": {"w": _PickleBomb(target)}}, buf)
-    with pytest.raises(CheckpointError):
-        acting_from_bytes(buf.getvalue())
-    assert not target.exists()
 
 
 def test_pixel_dense_maps_each_pixels_channels() -> None:

@@ -43,7 +43,7 @@ def test_gae_no_dones() -> None:
     # gae_2 = 2.5;  gae_1 = 1.75 + 0.25*2.5 = 2.375;  gae_0 = 1.0 + 0.25*2.375 = 1.59375
     # returns = gae + values = [2.09375, 3.375, 4.0]
     zeros = t(0, 0, 0)
-    adv, ret = compute_gae(t(1, 2, 3), t(0.5, 1.0, 1.5), zeros, zeros, t(1.0, 1.5, 2.0), 0.5, 0.5)
+    adv, ret = compute_gae(t(1, 2, 3), t(0.5, 1.0, 1.5), zeros, zeros, t(1.0, 1.5, 2.0), gamma=0.5, lam=0.5)
     _close(adv, [1.59375, 2.375, 2.5])
     _close(ret, [2.09375, 3.375, 4.0])
 
@@ -58,7 +58,7 @@ def test_gae_terminated_in_the_middle() -> None:
     # delta_2 = 3 + 0.5*1 - 1 = 2.5      gae_2 = 2.5 + 0.25*4 = 3.5
     # delta_1 = 2 + 0          - 1 = 1   gae_1 = 1 + 0.25*0*3.5 = 1
     # delta_0 = 1 + 0.5*1 - 1 = 0.5      gae_0 = 0.5 + 0.25*1 = 0.75
-    adv, ret = compute_gae(REWARDS, VALUES, ENDS_AT_1, t(0, 0, 0, 0), NEXT_VALUES, 0.5, 0.5)
+    adv, ret = compute_gae(REWARDS, VALUES, ENDS_AT_1, t(0, 0, 0, 0), NEXT_VALUES, gamma=0.5, lam=0.5)
     _close(adv, [0.75, 1.0, 3.5, 4.0])
     _close(ret, [1.75, 2.0, 4.5, 5.0])
 
@@ -68,13 +68,15 @@ def test_gae_truncated_bootstraps_without_flow() -> None:
     # delta_1 = 2 + 0.5*9 - 1 = 5.5      gae_1 = 5.5 + 0.25*0*3.5 = 5.5   (with flow it would be 6.375)
     # delta_0 = 0.5                      gae_0 = 0.5 + 0.25*5.5 = 1.875
     # gae_2 = 3.5 and gae_3 = 4 as before.
-    adv, ret = compute_gae(REWARDS, VALUES, t(0, 0, 0, 0), ENDS_AT_1, NEXT_VALUES, 0.5, 0.5)
+    adv, ret = compute_gae(REWARDS, VALUES, t(0, 0, 0, 0), ENDS_AT_1, NEXT_VALUES, gamma=0.5, lam=0.5)
     _close(adv, [1.875, 5.5, 3.5, 4.0])
     _close(ret, [2.875, 6.5, 4.5, 5.0])
 
 
 def test_gae_bool_flags_accepted() -> None:
-    adv, _ = compute_gae(REWARDS, VALUES, torch.zeros(4, dtype=torch.bool), ENDS_AT_1.bool(), NEXT_VALUES, 0.5, 0.5)
+    adv, _ = compute_gae(
+        REWARDS, VALUES, torch.zeros(4, dtype=torch.bool), ENDS_AT_1.bool(), NEXT_VALUES, gamma=0.5, lam=0.5
+    )
     _close(adv, [1.875, 5.5, 3.5, 4.0])
 
 
@@ -83,10 +85,10 @@ def test_gae_segment_end_bootstraps() -> None:
     # delta_1 = 1 + 0.9*10 - 0 = 10   gae_1 = 10
     # delta_0 = 1 + 0.9*0  - 0 = 1    gae_0 = 1 + 0.72*10 = 8.2
     zeros = t(0, 0)
-    adv, _ = compute_gae(t(1, 1), zeros, zeros, zeros, t(0, 10), 0.9, 0.8)
+    adv, _ = compute_gae(t(1, 1), zeros, zeros, zeros, t(0, 10), gamma=0.9, lam=0.8)
     _close(adv, [8.2, 10.0])
     # Had the last step terminated instead: delta_1 = 1, gae_1 = 1, gae_0 = 1 + 0.72*1 = 1.72.
-    adv_term, _ = compute_gae(t(1, 1), zeros, t(0, 1), zeros, t(0, 10), 0.9, 0.8)
+    adv_term, _ = compute_gae(t(1, 1), zeros, t(0, 1), zeros, t(0, 10), gamma=0.9, lam=0.8)
     _close(adv_term, [1.72, 1.0])
 
 
@@ -103,20 +105,20 @@ def test_gae_gamma_lambda_one_is_monte_carlo(terminated: tuple[int, ...], mc_ret
     # With gamma = lam = 1 the deltas telescope: advantages = G_t - V(o_t), returns = G_t.
     values = t(0.5, -1.0, 2.0, 3.0)
     next_values = t(-1.0, 2.0, 3.0, 99.0)  # next_values[t] = values[t+1]; 99 is after a terminal step, ignored
-    adv, ret = compute_gae(t(1, 2, 3, 4), values, t(*terminated), t(0, 0, 0, 0), next_values, 1.0, 1.0)
+    adv, ret = compute_gae(t(1, 2, 3, 4), values, t(*terminated), t(0, 0, 0, 0), next_values, gamma=1.0, lam=1.0)
     _close(ret, mc_returns)
     _close(adv, [g - v for g, v in zip(mc_returns, values.tolist(), strict=True)])
 
 
 def test_gae_ignores_next_value_of_terminal_step_even_if_nan() -> None:
     # delta_0 = 1 + 0 - 0.5 = 0.5 whatever next_values[0] holds
-    adv, _ = compute_gae(t(1), t(0.5), t(1), t(0), t(float("nan")), 0.99, 0.95)
+    adv, _ = compute_gae(t(1), t(0.5), t(1), t(0), t(float("nan")), gamma=0.99, lam=0.95)
     _close(adv, [0.5])
 
 
 def test_gae_shape_mismatch() -> None:
     with pytest.raises(ValueError, match="next_values"):
-        compute_gae(t(1, 2), t(0, 0), t(0, 0), t(0, 0), t(0), 0.9, 0.9)
+        compute_gae(t(1, 2), t(0, 0), t(0, 0), t(0, 0), t(0), gamma=0.9, lam=0.9)
 
 
 # --- policy_loss -----------------------------------------------------------------------------------

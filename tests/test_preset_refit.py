@@ -61,7 +61,17 @@ def test_refit_on_the_public_logs_lands_within_the_shipped_error_bars(name, tmp_
 
 def _trajectory(source: str, episode: int) -> Trajectory:
     t = np.arange(16) / 15
-    return Trajectory(source, episode, t, 0 * t, 1 + 0 * t, t, 0 * t, 0 * t, 0.14)
+    return Trajectory(
+        source,
+        episode,
+        t,
+        steer_cmd_deg=0 * t,
+        speed_cmd_mps=1 + 0 * t,
+        x=t,
+        y=0 * t,
+        heading_deg=0 * t,
+        reference_point_m=0.14,
+    )
 
 
 def test_selection_is_in_the_order_the_fit_splits_episodes():

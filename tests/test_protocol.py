@@ -40,8 +40,8 @@ def make_segment(run_id="run-a", steps=4, discrete=True, seed=0) -> Segment:
         "next_values": rng.random(steps).astype(np.float32),
         "episode_id": np.full(steps, 7, np.int64),
     }
-    ep = EpisodeSummary(7, 12, 33.5, 4.2, "off_track", DEFAULT_TRACK, None)
-    return Segment(run_id, "w-0", 3, 1000, arrays, [ep])
+    ep = EpisodeSummary(7, 12, 33.5, 4.2, "off_track", track=DEFAULT_TRACK, lap_time_s=None)
+    return Segment(run_id, "w-0", 3, 1000, arrays=arrays, episodes=[ep])
 
 
 def roundtrip(seg, **kw):

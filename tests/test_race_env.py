@@ -37,6 +37,8 @@ def test_a_time_trial_has_no_objects_and_the_simapps_empty_object_params() -> No
     p = info["params"]
     assert env.objects == [] and p["is_crashed"] is False and p["closest_objects"] == [0, 0]
     assert p["objects_location"] == [] and p["objects_distance"] == [] and p["object_in_camera"] is False
+    for key in ("objects_left_of_center", "objects_speed", "objects_heading", "objects_distance_from_center"):
+        assert p[key] == []  # the simapp's defaults (agent_ctrl/constants.py: RewardParam)
 
 
 def test_obstacle_params_follow_the_placed_objects() -> None:
@@ -57,7 +59,7 @@ def _drive_into(env: RacerEnv, target: Pose, gap: float, steps: int = 60) -> dic
     index = int(env.track.project(np.array([[start.x, start.y]])).segment[0])
     env.reset(seed=0, options={"start_index": index})
     env.physics.reset(start)  # the episode's start waypoint, moved sideways into the target's lane
-    env._place_objects()
+    env.place_objects()
     info = {}
     for _ in range(steps):
         _, _, terminated, _, info = env.step(0)
@@ -116,11 +118,11 @@ def test_the_lidar_and_the_camera_see_a_box(tmp_path: Path, sensors: list[str]) 
         x = box.x + off * math.cos(side) - 0.3 * math.cos(box.yaw)
         y = box.y + off * math.sin(side) - 0.3 * math.sin(box.yaw)
         env.physics.reset(Pose(x, y, box.yaw + 0.3))
-        env._place_objects()
-        beside = env._observe()
+        env.place_objects()
+        beside = env.observe()
         env.physics.reset(Pose(box.x - math.cos(box.yaw), box.y - math.sin(box.yaw), box.yaw))  # 1 m behind it
-        env._place_objects()
-        behind = env._observe()
+        env.place_objects()
+        behind = env.observe()
         assert env.observation_space.contains(beside) and env.observation_space.contains(behind)
         frames.append((beside, behind))
     (with_box, seen_ahead), (without, empty_ahead) = frames
@@ -161,7 +163,7 @@ def test_the_sim_trace_of_a_race_with_objects_has_the_simapps_crash_column(tmp_p
     index = int(env.track.project(np.array([[start.x, start.y]])).segment[0])
     _, info = env.reset(seed=0, options={"start_index": index})
     env.physics.reset(start)
-    env._place_objects()
+    env.place_objects()
     recorder.reset(info, 0)
     for _ in range(60):
         _, reward, terminated, truncated, info = env.step(0)
@@ -190,7 +192,7 @@ def test_an_evaluation_puts_the_car_back_behind_the_box_with_the_collision_penal
     index = int(env.track.project(np.array([[start.x, start.y]])).segment[0])
     env.reset(seed=0, options={"start_index": index, "evaluation": True})
     env.physics.reset(start)
-    env._place_objects()
+    env.place_objects()
     for _ in range(40):
         _, _, terminated, _, info = env.step(0)
         if info["episode_status"] == "crashed":
@@ -205,7 +207,7 @@ def test_an_evaluation_puts_the_car_back_behind_the_box_with_the_collision_penal
     training = RacerEnv(track=DEFAULT_TRACK, race=race, action_space=metadata(tmp_path, ["FRONT_FACING_CAMERA"]))
     training.reset(seed=0, options={"start_index": index})
     training.physics.reset(start)
-    training._place_objects()
+    training.place_objects()
     for _ in range(40):
         _, _, terminated, _, info = training.step(0)
         if terminated:
@@ -225,7 +227,7 @@ def test_an_evaluation_pauses_the_car_where_it_ran_into_a_bot_while_the_bots_dri
     index = int(env.track.project(np.array([[start.x, start.y]])).segment[0])
     env.reset(seed=0, options={"start_index": index, "evaluation": True})
     env.physics.reset(start)
-    env._place_objects()
+    env.place_objects()
     for _ in range(40):
         bot_before = env.objects[0]
         _, _, terminated, _, info = env.step(0)
@@ -276,10 +278,10 @@ def test_deepracers_evaluation_resets_count_in_the_trial_and_its_summary(tmp_pat
     env = RacerEnv(track=DEFAULT_TRACK, race=race, action_space=str(space))
     torch.manual_seed(0)
     model = build_policy((120, 160, 1), action_space_spec(env.actions))
-    trial = run_trial(env, model, 1, 0, False, 0, True, resets=True)
+    trial = run_trial(env, model, 1, 0, False, seed=0, deterministic=True, resets=True)
     assert (trial.status, trial.resets, trial.penalty_s) == ("off_track", 2, 6.0)
     assert summarize([trial])["resets"] == 2
-    robust = run_trial(env, model, 1, 0, False, 0, True)
+    robust = run_trial(env, model, 1, 0, False, seed=0, deterministic=True)
     assert (robust.status, robust.resets) == ("off_track", 0) and robust.steps < trial.steps
     cfg = env.config.model_copy(update={"action_space": str(space)})
     lockstep = evaluate(model, cfg, 1, EvalSettings(episodes=2, both_directions=False, resets=True))
@@ -302,8 +304,8 @@ def test_the_10_hz_lidar_repeats_its_last_scan_on_one_step_in_three(tmp_path: Pa
         box.yaw + 0.3,
     )
     env.physics.reset(beside)
-    env._place_objects()
-    scans = [env._observe()[LIDAR_KEY]]
+    env.place_objects()
+    scans = [env.observe()[LIDAR_KEY]]
     for _ in range(7):
         obs, *_ = env.step(0)
         scans.append(obs[LIDAR_KEY])

@@ -101,6 +101,7 @@ def test_the_table_is_the_sha256_of_every_simapp_route():
 # --- pulling ------------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 @needs_deepracer_tracks
 def test_pull_all_from_a_local_server_caches_127_verified_tracks_that_load(tmp_path):
     cache = tmp_path / "tracks"
@@ -123,6 +124,7 @@ def test_pull_all_from_a_local_server_caches_127_verified_tracks_that_load(tmp_p
     assert track.closed and track.length == pytest.approx(25.11, abs=0.01)
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 @needs_deepracer_tracks
 def test_a_pulled_track_is_found_by_name_on_every_command(tmp_path):
     cache = tmp_path / "tracks"
@@ -209,3 +211,67 @@ def test_pull_wants_names_or_all_not_both_nor_neither(tmp_path):
     for args in ([], ["reinvent_base", "--all"]):
         done = racer("tracks", "pull", *args, "--dir", str(tmp_path))
         assert done.returncode == 2 and "give track names or --all" in done.stderr
+
+
+# --- offline, and a --from that cannot hold the routes -------------------------------------------------------------
+
+
+def test_an_unreachable_download_names_the_failure_and_how_to_pull_offline(tmp_path):
+    with socket.socket() as sock:  # a port nothing listens on: the download fails as it does offline
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    cache = tmp_path / "tracks"
+    # No --from given: the source is the default one, here pointed (by RACER_TRACKS_FROM) at the dead port.
+    env = {**os.environ, "RACER_TRACKS_FROM": f"http://127.0.0.1:{port}"}
+    done = racer("tracks", "pull", "Oval_track", "reinvent_base", "--dir", str(cache), env=env)
+    assert done.returncode == 2
+    err = done.stderr.strip()
+    assert len(err.splitlines()) == 1, err
+    assert "cannot connect" in err and f"127.0.0.1:{port}" in err  # the network failure
+    assert "--from PATH" in err and "offline" in err  # and the way round it
+    assert folder_state(cache) == {}
+
+
+def test_a_missing_file_in_a_local_folder_is_not_called_a_network_failure(tmp_path):
+    source = tmp_path / "mirror"
+    source.mkdir()
+    (source / "Oval_track.npy").write_bytes(b"not a route")
+    with pytest.raises(PullError) as info:
+        pull(["reinvent_base", "Oval_track"], f"file://{source}", tmp_path / "tracks")
+    message = str(info.value)
+    assert "reinvent_base.npy: No such file or directory" in message, message
+    assert "offline" not in message and "cannot connect" not in message
+
+
+@pytest.mark.parametrize("kind", ["missing", "empty", "a file"])
+def test_a_from_folder_that_cannot_hold_the_routes_is_one_error_naming_it(tmp_path, kind):
+    source = tmp_path / "routes"
+    if kind == "empty":
+        source.mkdir()
+        (source / "README.md").write_text("no routes here")
+    elif kind == "a file":
+        source.write_bytes(b"an archive, say")
+    cache = tmp_path / "tracks"
+    done = racer("tracks", "pull", "--all", "--from", str(source), "--dir", str(cache))
+    assert done.returncode == 2
+    err = done.stderr.strip()
+    assert len(err.splitlines()) == 1, err
+    assert "--from" in err and str(source) in err and "more failed" not in err, err
+    assert not cache.exists()  # nothing installed, not even the folder
+
+
+def test_a_from_file_url_to_a_missing_folder_is_one_error_naming_it(tmp_path):
+    url = f"file://{tmp_path / 'nowhere'}"
+    with pytest.raises(PullError, match="--from") as info:
+        pull(["Oval_track", "reinvent_base"], url, tmp_path / "tracks")
+    assert url in str(info.value) and "does not exist" in str(info.value)
+    assert not (tmp_path / "tracks").exists()
+
+
+def test_a_misspelt_deepracer_name_suggests_the_closest(tmp_path):
+    done = racer("tracks", "pull", "reinvent_bse", "--dir", str(tmp_path / "t"))
+    assert done.returncode == 2
+    err = done.stderr.strip()
+    assert len(err.splitlines()) == 1 and "'reinvent_bse'" in err and "did you mean 'reinvent_base'" in err, err
+    with pytest.raises(PullError, match="did you mean 'reInvent2019_wide_cw'"):
+        pull(["reinvent2019_wide_cw"], str(tmp_path), tmp_path / "t")  # the right name in the wrong case

@@ -11,7 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from common.deadline import Deadline, parse_duration
-from common.defaults import DEFAULT_EVAL_EPISODES, DEFAULT_TRACK, DEFAULT_WORKERS
+from common.defaults import DEFAULT_EVAL_EPISODES, DEFAULT_TRACK, DEFAULT_TRAINER_THREADS, DEFAULT_WORKERS
 from common.errors import OptionError
 from racer.check import merge_inputs
 from racer.cli import app
@@ -34,7 +34,7 @@ def test_the_time_limit_is_parsed_once_into_a_number_and_one_deadline() -> None:
     assert before + 300.0 <= started.deadline.at <= time.time() + 300.0
     assert started.started() is started  # fixed once: starting again keeps it
     assert RunOptions.model_validate_json(started.model_dump_json()) == started  # JSON, whole
-    with pytest.raises(OptionError, match="--time-limit 'soon': duration 'soon' is not valid"):
+    with pytest.raises(OptionError, match="--time-limit 'soon' is not valid: use a number with s, m or h"):
         RunOptions.from_flags(time_limit_s="soon")
     assert RunOptions().started().deadline is None
 
@@ -43,6 +43,17 @@ def test_a_deadline_counts_down_in_wall_clock_time() -> None:
     past = Deadline(at=time.time() - 1.0, limit_s=10.0)
     assert past.passed() and past.left() < 0 and past.elapsed() > 10.0
     assert not Deadline.after(60.0).passed() and parse_duration("1.5h") == 5400.0
+
+
+def test_a_duration_needs_its_unit_and_the_error_names_the_option() -> None:
+    assert [parse_duration(t) for t in ("90s", "5m", " 1.5h ", "2 m")] == [90.0, 300.0, 5400.0, 120.0]
+    with pytest.raises(OptionError, match=r"^--time-limit 5: give a unit: 5s, 5m or 5h$"):
+        parse_duration("5", "--time-limit")
+    with pytest.raises(OptionError, match=r"^duration 0.5: give a unit: 0.5s, 0.5m or 0.5h$"):
+        parse_duration("0.5")
+    with pytest.raises(OptionError, match=r"^--time-limit 5: give a unit"):  # from the flag, as train reads it
+        RunOptions.from_flags(time_limit_s="5")
+    assert RunOptions(time_limit_s=5).time_limit_s == 5.0  # a number is seconds: the options' JSON
 
 
 def test_drfc_values_fill_only_the_options_left_unset(tmp_path: Path) -> None:
@@ -86,7 +97,7 @@ def _train_through_the_trainer_role(monkeypatch: pytest.MonkeyPatch, args: list[
         seen["trainer"] = opts
         return {}
 
-    def watch(run, opts, redis_url, trainer, workers, console) -> dict:
+    def watch(run, opts, redis_url, *, trainer, workers, console) -> dict:
         seen["launcher"] = opts
         return {}
 
@@ -139,6 +150,49 @@ def test_racer_trainer_alone_parses_its_time_limit_once_into_the_deadline(
     assert done.exit_code == 0, done.output
     deadline = seen["opts"].deadline
     assert deadline.limit_s == 120.0 and before + 120.0 <= deadline.at <= time.time() + 120.0
-    assert seen["run"].run_id == "alone" and seen["opts"].torch_threads == 1
+    assert seen["run"].run_id == "alone" and seen["opts"].torch_threads == DEFAULT_TRAINER_THREADS  # as racer train
     bad = CliRunner().invoke(app, [*args, "--time-limit", "soon"])
-    assert bad.exit_code == 2 and "--time-limit 'soon': duration 'soon' is not valid" in bad.output
+    assert bad.exit_code == 2 and "--time-limit 'soon' is not valid" in bad.output
+
+
+def _parsed(args: list[str]) -> dict:
+    """What the real role command (``racer worker|evaluator|trainer``) makes of ``args``: its parameters, as click
+    parses them (nothing runs)."""
+    import typer.main
+
+    command = typer.main.get_command(app)
+    with command.make_context("racer", list(args), resilient_parsing=False) as ctx:
+        role = command.get_command(ctx, args[0])
+        return role.make_context(args[0], list(args[1:])).params
+
+
+def test_each_role_s_command_line_is_derived_from_the_run_options_and_parses_back_to_them() -> None:
+    """racer train starts its roles with ``RunOptions.worker_args`` / ``evaluator_args`` / ``role_args``: the roles'
+    own commands read back every value, non-defaults included."""
+    opts = RunOptions(
+        run_id="r1",
+        redis_url="redis://127.0.0.1:7001/0",
+        store="/tmp/store",
+        s3_endpoint="http://127.0.0.1:9000",
+        envs_per_worker=3,
+        eval_every=4,
+        eval_episodes=5,
+        eval_nice=7,
+        eval_tracks=["racer_loop", "racer_wide"],
+        eval_both_directions=False,
+        device="cpu",
+    )
+    where = {"run_id": "r1", "redis_url": opts.redis_url, "store": "/tmp/store", "s3_endpoint": opts.s3_endpoint}
+    worker = _parsed(opts.worker_args(2))
+    assert {k: worker[k] for k in where} == where and (worker["index"], worker["envs_per_worker"]) == (2, 3)
+    evaluator = _parsed(opts.evaluator_args())
+    assert {k: evaluator[k] for k in where} == where
+    assert (evaluator["every"], evaluator["episodes"], evaluator["nice"], evaluator["device"]) == (4, 5, 7, "cpu")
+    assert list(evaluator["track"]) == ["racer_loop", "racer_wide"] and evaluator["forward_only"] is True
+    trainer = _parsed(["trainer", *opts.role_args()])
+    assert {k: trainer[k] for k in where} == where
+    # Left unset, the evaluator's starts are the role's own default, the one racer train uses.
+    default = _parsed(RunOptions(run_id="r1", redis_url="redis://h:1/0").evaluator_args())
+    assert default["episodes"] == DEFAULT_EVAL_EPISODES and default["forward_only"] is False
+    with pytest.raises(ValueError, match="run id and the Redis URL"):
+        RunOptions().worker_args(0)

@@ -33,15 +33,7 @@ from common.action_space import NEURAL_NETWORKS, ActionSpaceError, default_actio
 from common.config import PolicyConfig, RunConfig, network_from_metadata
 from common.framestack import FrameStack
 from common.hyperparams import Hyperparameters
-from common.policy import (
-    LIDAR_EMBEDDER,
-    ActorCritic,
-    action_space_spec,
-    build_policy,
-    checkpoint_from_bytes,
-    checkpoint_to_bytes,
-    load_policy,
-)
+from common.policy import LIDAR_EMBEDDER, ActorCritic, action_space_spec, build_policy
 from common.sensors import (
     FRONT_FACING_CAMERA,
     LIDAR,
@@ -52,6 +44,7 @@ from common.sensors import (
     observation_spec,
     sensor_problem,
 )
+from common.weights import checkpoint_from_bytes, checkpoint_to_bytes, load_policy
 from model_store import LocalStore, RunStore
 
 DISCRETE = {"kind": "discrete", "n": 10}
@@ -417,10 +410,11 @@ def test_a_stored_stereo_lidar_checkpoint_loads_for_acting(tmp_path: Path) -> No
     assert action_space_spec(actions) == DISCRETE  # the sensors travel beside the spec, not in it
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_a_checkpoint_made_for_another_network_is_one_clear_error(tmp_path: Path) -> None:
     """A run whose config names a network its stored weights were not made for (a run from before racer's deep
     networks became the simapp's): load_policy names the run, the checkpoint and the network, in one line."""
-    from common.policy import CheckpointError
+    from common.weights import CheckpointError
 
     runs = RunStore(LocalStore(tmp_path))
     runs.write_config(RunConfig(run_id="old", policy=PolicyConfig(network="deep")))

@@ -296,6 +296,7 @@ def _load(folder) -> tuple[DeepRacerLog, object]:
     return log, log.dataframe()
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_the_worker_writes_one_csv_per_iteration_in_drfcs_multi_worker_layout(rollout):
     files = sorted(p.relative_to(rollout["dir"]).as_posix() for p in rollout["dir"].rglob("*-iteration.csv"))
     assert files == ["0/training-simtrace/0-iteration.csv", "0/training-simtrace/1-iteration.csv"]

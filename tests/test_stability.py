@@ -20,8 +20,8 @@ from common.deadline import Deadline
 from common.defaults import STRAIGHT_TRACK
 from common.errors import OptionError
 from common.keys import Keys
-from common.policy import acting_from_bytes, acting_to_bytes, checkpoint_from_bytes, state_dict_from_bytes
 from common.protocol import PolicyVersion
+from common.weights import acting_from_bytes, acting_to_bytes, checkpoint_from_bytes, state_dict_from_bytes
 from model_store import RunStore, open_store
 from model_store.runs import METRICS_FILE
 from racer.options import RunOptions
@@ -182,6 +182,7 @@ def _same(a: dict, b: dict) -> bool:
     return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
 
 
+@pytest.mark.slow(reason="a real trainer and worker over Redis")
 def test_a_collapse_rolls_back_to_the_best_weights_and_optimizer_at_a_lower_lr(
     redis_url, run_id, tmp_path, caplog
 ) -> None:
@@ -257,6 +258,7 @@ def test_a_collapse_rolls_back_to_the_best_weights_and_optimizer_at_a_lower_lr(
     assert again.guard() is False  # the evaluations of v2 and v3 are below the floor
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_a_drift_to_slower_laps_rolls_back_with_collapse_slowdown(redis_url, run_id, tmp_path, caplog) -> None:
     trainer, worker, r, runs = three_versions(
         run_id,

@@ -489,6 +489,7 @@ def test_env_reverse_start_option(base_env):
     assert params["closest_waypoints"][0] in (10, 11)
 
 
+@pytest.mark.slow(reason="many cases, each a real env: over 6 s in all")
 @pytest.mark.parametrize(
     "name", racer_track_names() + [pytest.param(n, marks=needs_deepracer_tracks) for n in deepracer_track_names()]
 )

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +37,7 @@ RACER_TRACKS = {
     "racer_loop": (17.6, 0.76, "CCW"),
     "racer_loop_cw": (17.6, 0.76, "CW"),
     "racer_wide": (24.0, 1.07, "CCW"),
+    "racer_bends": (20.0, 0.76, "CCW"),
     "racer_straight": (5.7, 0.61, "open"),
 }
 
@@ -78,7 +81,7 @@ def circle() -> Track:
 # --- racer's own tracks ---------------------------------------------------------------------------
 
 
-def test_racer_tracks_are_the_documented_four_and_the_default_is_one():
+def test_racer_tracks_are_the_documented_five_and_the_default_is_one():
     assert racer_track_names() == sorted(RACER_TRACKS)
     assert DEFAULT_TRACK in RACER_TRACKS and STRAIGHT_TRACK == "racer_straight"
     assert set(RACER_TRACKS) <= set(known_track_names())
@@ -380,6 +383,29 @@ def test_unknown_track_name_lists_racers_tracks_and_where_to_find_deepracers():
     assert "no_such_track" in message and "racer tracks ls" in message
     for name in racer_track_names():
         assert name in message
+
+
+def test_a_misspelt_track_name_suggests_the_closest_known_names(tmp_path, monkeypatch):
+    monkeypatch.setenv("RACER_TRACKS_DIR", str(tmp_path))  # the known names: racer's and the pullable ones only
+    for typed, meant in (("racer_lop", "racer_loop"), ("RACER_WIDE", "racer_wide"), ("reinvent_bse", "reinvent_base")):
+        with pytest.raises(TrackError) as info:
+            load_track(typed)
+        message = str(info.value)
+        assert f"unknown track {typed!r}: did you mean {meant!r}" in message and "\n" not in message, message
+    with pytest.raises(TrackError) as info:
+        load_track("qqqqqqqq")
+    assert "did you mean" not in str(info.value)  # nothing close: no guess
+
+
+@pytest.mark.slow(reason="starts real racer processes")
+def test_a_misspelt_track_name_on_the_command_line_suggests_the_closest(tmp_path):
+    env = {**os.environ, "RACER_TRACKS_DIR": str(tmp_path)}
+    command = [sys.executable, "-m", "racer", "tracks", "show", "racer_bnds", "--png", str(tmp_path / "t.png")]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300, env=env)
+    assert done.returncode == 2
+    err = done.stderr.strip()
+    assert len(err.splitlines()) == 1 and "unknown track 'racer_bnds': did you mean 'racer_bends'" in err, err
+    assert not (tmp_path / "t.png").exists()
 
 
 def test_from_array_error_names_the_source():

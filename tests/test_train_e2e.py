@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import redis
 
 from common.config import EnvConfig
@@ -35,6 +36,7 @@ def worker_switches(log_dir: Path) -> dict[str, list[int]]:
     return out
 
 
+@pytest.mark.slow(reason="runs racer train with its real processes")
 def test_train_two_workers_learns_and_survives_a_killed_worker(tmp_path, redis_url):
     (tmp_path / "hp.json").write_text(json.dumps(HP))
     run_id = "e2e"
@@ -85,6 +87,7 @@ def test_train_two_workers_learns_and_survives_a_killed_worker(tmp_path, redis_u
     assert best_late > random_progress + 5, (random_progress, [r["mean_progress"] for r in rows])
 
 
+@pytest.mark.slow(reason="runs racer train with its real processes")
 def test_train_embedded_redis_starts_and_cleans_up(tmp_path):
     result = racer(
         "train",
@@ -148,6 +151,7 @@ def _interrupt_train(tmp_path, run_id: str, extra: list[str], checkpoints: int, 
     return out
 
 
+@pytest.mark.slow(reason="needs a Docker engine")
 def test_sigterm_stops_everything_as_ctrl_c_does(tmp_path):
     """``kill`` / ``docker stop`` send SIGTERM; the roles run in their own sessions, so the launcher must stop them."""
     out = _interrupt_train(tmp_path, "st", [], 1, signal.SIGTERM)
@@ -155,6 +159,7 @@ def test_sigterm_stops_everything_as_ctrl_c_does(tmp_path):
     assert "stopping (Ctrl-C or SIGTERM)" in out
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_ctrl_c_stops_everything_and_resume_continues_the_run(tmp_path):
     (tmp_path / "hp.json").write_text(json.dumps({**HP, "num_episodes_between_training": 4, "num_epochs": 1}))
     out = _interrupt_train(tmp_path, "cc", ["--hyperparams", "hp.json"], 2, signal.SIGINT)
@@ -172,6 +177,7 @@ def test_ctrl_c_stops_everything_and_resume_continues_the_run(tmp_path):
     assert after["env_steps"] > before["env_steps"]
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_evaluator_keeps_best_and_training_stops_when_robust(tmp_path):
     (tmp_path / "hp.json").write_text(json.dumps(HP))
     result = racer(

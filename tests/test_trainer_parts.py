@@ -51,6 +51,7 @@ def test_the_trainer_imports_nothing_from_sim() -> None:
     assert done.stdout.strip() == "[]"
 
 
+@pytest.mark.slow(reason="runs racer train with its real processes")
 def test_the_trainer_role_under_racer_train_imports_nothing_from_sim(tmp_path: Path) -> None:
     """``racer trainer --config --files --options`` as ``racer train`` starts it, up to ``run_trainer``."""
     from racer.options import RunOptions
@@ -141,7 +142,12 @@ def _fields(seg) -> dict:
 
 def test_the_intake_keeps_a_fresh_segment_and_counts_each_drop_by_reason() -> None:
     intake = SegmentIntake(
-        SimpleNamespace(), "run-a", observation_spec(["FRONT_FACING_CAMERA"]), (120, 160, 1), 10, Stats()
+        SimpleNamespace(),
+        "run-a",
+        observation_spec(["FRONT_FACING_CAMERA"]),
+        obs_shape=(120, 160, 1),
+        n_actions=10,
+        stats=Stats(),
     )
     seg = make_segment()  # policy version 3, 4 steps, one episode
     assert intake.accept(_fields(seg), version=3, floor=0, max_lag=0) == 1
@@ -233,7 +239,7 @@ def test_the_guard_finds_a_collapse_against_the_best_and_records_the_rollback(tm
     runs.set_pointer("parts", "best", 1)
     runs.write_file("parts", evaluation_name(1), json.dumps({"completion_rate": 0.75, "mean_lap_s": 9.0}))
     bus = _Bus([_summary(1, 0.75), _summary(2, 0.0)])
-    guard = CollapseGuard(run.hyperparams, "parts", bus, runs, outage, outage)
+    guard = CollapseGuard(run.hyperparams, "parts", bus, runs, redis_outage=outage, store_outage=outage)
     assert guard.collapse() is None  # one collapsed evaluation could be noise
     bus._evaluations.append(_summary(3, 1 / 12))
     found = guard.collapse()
@@ -268,10 +274,12 @@ class _Board:
 def test_a_metrics_row_by_hand_and_the_reporters_files(tmp_path: Path) -> None:
     runs, outage = _store(tmp_path)
     stats = Stats(env_steps=40, iteration=2, started=time.monotonic() - 10.0)
-    lap = EpisodeSummary(1, 30, 100.0, 9.0, "lap_complete", STRAIGHT_TRACK, 12.0)
-    off = EpisodeSummary(2, 10, 20.0, 1.0, "off_track", STRAIGHT_TRACK, None)
+    lap = EpisodeSummary(1, 30, 100.0, 9.0, "lap_complete", track=STRAIGHT_TRACK, lap_time_s=12.0)
+    off = EpisodeSummary(2, 10, 20.0, 1.0, "off_track", track=STRAIGHT_TRACK, lap_time_s=None)
     segments = [SimpleNamespace(episodes=[lap], policy_version=2), SimpleNamespace(episodes=[off], policy_version=1)]
-    row = metrics_row(stats, 3, Stability(collapses=1), segments, 64, 0.0003, 1.5, {"policy_loss": 0.25})
+    row = metrics_row(
+        stats, 3, Stability(collapses=1), segments, batch_steps=64, lr=0.0003, train_s=1.5, losses={"policy_loss": 0.25}
+    )
     assert (row["episodes"], row["batch_steps"], row["laps_completed"]) == (2, 64, 1)
     assert row["mean_progress"] == 60.0 and row["mean_reward"] == 5.0 and row["mean_lap_time_s"] == 12.0
     assert row["mean_policy_lag"] == 0.5 and row["policy_version"] == 3 and row["collapses"] == 1

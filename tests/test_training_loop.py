@@ -9,15 +9,15 @@ import torch
 
 from common.defaults import STRAIGHT_TRACK
 from common.keys import Keys
-from common.policy import acting_from_bytes, acting_to_bytes, bf16_is_fast, checkpoint_from_bytes
 from common.protocol import PolicyVersion
+from common.weights import acting_from_bytes, acting_to_bytes, checkpoint_from_bytes
 from model_store import RunStore, open_store
 from model_store.runs import METRICS_FILE, acting_key
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
 from tests.conftest import S3_BUCKET
 from trainer.device import resolve_device
-from trainer.precision import fastest
+from trainer.precision import bf16_is_fast, fastest
 from trainer.process import Trainer, TrainerOptions
 
 
@@ -68,6 +68,7 @@ def test_trainer_publishes_v0_and_worker_pushes_segments(redis_url, run_id, tmp_
     worker.close()
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_an_iteration_publishes_a_version_the_worker_switches_to(redis_url, run_id, tmp_path, hp_file):
     store = str(tmp_path / "store")
     trainer, worker = start(run_id, redis_url, store, hp_file)
@@ -111,7 +112,7 @@ def test_stale_and_malformed_segments_are_dropped_and_counted(redis_url, run_id,
     assert trainer.read(block_ms=200) == 0
     assert trainer.stats.dropped == {"stale": 1, "bad_header": 1, "no_header": 1}
     assert trainer.stats.dropped_steps == seg.steps == 16  # the malformed entries' steps are unknown
-    assert trainer.buffer == []
+    assert trainer.intake.buffer == []
     worker.close()
 
 
@@ -128,6 +129,7 @@ def test_a_segment_that_reaches_the_stream_twice_is_counted_once(redis_url, run_
     worker.close()
 
 
+@pytest.mark.slow(reason="a real trainer and worker over Redis")
 def test_resume_restores_version_steps_and_optimizer(redis_url, run_id, tmp_path, hp_file):
     store = str(tmp_path / "store")
     trainer, worker = start(run_id, redis_url, store, hp_file)
@@ -140,9 +142,10 @@ def test_resume_restores_version_steps_and_optimizer(redis_url, run_id, tmp_path
     before = trainer.optimizer.state_dict()["state"]
     after = again.optimizer.state_dict()["state"]
     assert before.keys() == after.keys() and torch.equal(before[0]["exp_avg"], after[0]["exp_avg"])
-    assert len(again.metrics) == 1
+    assert len(again.reporter.metrics) == 1
 
 
+@pytest.mark.slow(reason="a real trainer and worker over Redis")
 def test_a_worker_of_a_run_from_before_acting_copies_loads_the_checkpoint(redis_url, run_id, tmp_path, hp_file):
     """A resumed older run has no acting copy of its newest version: workers load the checkpoint itself (float32),
     and the next version the resumed trainer writes has its acting copy again."""
@@ -167,6 +170,7 @@ def test_a_worker_of_a_run_from_before_acting_copies_loads_the_checkpoint(redis_
     late.close()
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_only_the_newest_checkpoint_keeps_the_optimizer_state(redis_url, run_id, tmp_path, hp_file):
     """Adam's state is twice the weights: a run keeps it for the checkpoint a resume reads, not for every one."""
     store = str(tmp_path / "store")
@@ -185,6 +189,7 @@ def test_only_the_newest_checkpoint_keeps_the_optimizer_state(redis_url, run_id,
     assert meta["size_bytes"] == len(payload)
 
 
+@pytest.mark.slow(reason="a real trainer and worker over Redis")
 def test_the_loop_works_with_an_s3_store(redis_url, run_id, s3_server, hp_file, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # TensorBoard files of an S3 run go to ./runs/<id>/tensorboard
     store = f"s3://{S3_BUCKET}/it"
@@ -203,6 +208,7 @@ def test_the_loop_works_with_an_s3_store(redis_url, run_id, s3_server, hp_file, 
     worker.close()
 
 
+@pytest.mark.slow(reason="a real trainer and worker over Redis")
 def test_continuous_actions_and_frame_stacking(redis_url, run_id, tmp_path):
     meta = tmp_path / "model_metadata.json"
     meta.write_text(
@@ -232,6 +238,7 @@ def test_continuous_actions_and_frame_stacking(redis_url, run_id, tmp_path):
     worker.close()
 
 
+@pytest.mark.slow(reason="runs racer train with its real processes")
 def test_models_ls_lists_the_checkpoints_as_json(redis_url, run_id, tmp_path, hp_file):
     from typer.testing import CliRunner
 
@@ -249,6 +256,7 @@ def test_models_ls_lists_the_checkpoints_as_json(redis_url, run_id, tmp_path, hp
     assert rows[1]["latest"] and rows[1]["env_steps"] == trainer.stats.env_steps and rows[0]["env_steps"] == 0
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_tensorboard_scalars_and_checkpoint_pruning(redis_url, run_id, tmp_path, hp_file):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 

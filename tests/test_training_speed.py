@@ -6,10 +6,10 @@ from __future__ import annotations
 import pytest
 import torch
 
-from common.policy import bf16_is_fast, build_policy
+from common.policy import build_policy
 from racer.bench.update import bench_update
-from trainer.ppo import PPOBatch, minibatch_step
-from trainer.precision import fastest, precision_candidates, time_precisions
+from trainer.ppo import PPOBatch, StepArgs, minibatch_step
+from trainer.precision import bf16_is_fast, fastest, precision_candidates, time_precisions
 from trainer.process import make_optimizer
 
 DISCRETE = {"kind": "discrete", "n": 10}
@@ -36,7 +36,9 @@ def _twin_models(seed: int = 0):
 
 
 def _step(model, opt, mb):
-    return minibatch_step(model, opt, mb, 0.2, 0.01, 0.5, "huber", 0.5)
+    return minibatch_step(
+        model, opt, mb, clip_eps=0.2, beta_entropy=0.01, value_coef=0.5, loss_type="huber", max_grad_norm=0.5
+    )
 
 
 def test_fused_adam_makes_the_same_update_as_the_loop() -> None:
@@ -73,6 +75,7 @@ def test_bf16_trunk_gives_float32_outputs_close_to_fp32() -> None:
         assert torch.equal(bf16(obs)[0], logits32)
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_bf16_update_learns_like_fp32() -> None:
     # The value head fits returns around 3 on a fixed batch. Single trajectories are noisy (lr 1e-3 on noise
     # images), so both precisions must clear the same bar: the best of the last 10 of 40 steps ≤ 15 % of the first.
@@ -97,6 +100,7 @@ def test_precision_names() -> None:
         build_policy((120, 160, 1), DISCRETE).set_trunk_precision("half")  # type: ignore[arg-type]
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_bench_update_times_every_setting() -> None:
     result = bench_update(threads=1, batch=8, steps=2, repeats=2)
     assert set(result["ms_per_step"]) == {"fp32", "fp32-fused", "bf16", "bf16-fused"}
@@ -123,7 +127,8 @@ def test_timing_the_precisions_leaves_the_model_and_the_random_state_alone() -> 
     torch.manual_seed(7)
     expected_draw = torch.rand(3)
     torch.manual_seed(7)
-    ms = time_precisions(model, _batch(8), ("fp32", "bf16"), (0.2, 0.01, 0.5, "huber", 0.5))
+    args = StepArgs(clip_eps=0.2, beta_entropy=0.01, value_coef=0.5, loss_type="huber", max_grad_norm=0.5)
+    ms = time_precisions(model, _batch(8), ("fp32", "bf16"), args)
     assert set(ms) == {"fp32", "bf16"} and all(v > 0 for v in ms.values())
     assert torch.equal(torch.rand(3), expected_draw)
     assert not model.training and model.trunk_dtype is None

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -47,7 +48,7 @@ def valid_fields(steps: int = 3) -> dict[str, bytes]:
         "next_values": np.zeros(steps, np.float32),
         "episode_id": np.zeros(steps, np.int64),
     }
-    return encode_segment(Segment("r", "w", 0, 0, arrays))
+    return encode_segment(Segment("r", "w", 0, 0, arrays=arrays))
 
 
 def decode(fields: dict) -> Segment | None:
@@ -63,6 +64,7 @@ def decode(fields: dict) -> Segment | None:
     return seg
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 @SETTINGS
 @given(
     header_patch=st.dictionaries(
@@ -211,3 +213,11 @@ def check_loader(path: Path, content: bytes, loader, error: type[Exception]) -> 
         message = str(exc)
         assert "\n" not in message, message
         assert path.name in message, message
+
+
+def test_a_key_with_a_newline_is_quoted_so_the_error_stays_one_line(tmp_path):
+    """Found by hypothesis: ``{"\\n": null}`` in a car.json printed its key raw, splitting the error over two lines."""
+    check_loader(tmp_path / "car.json", b'{"\\n": null}', load_calibration, CalibrationError)
+    from common.errors import error_location
+
+    assert error_location(["a", "\n", 0, ""]) == "a.'\\n'.0.''"

@@ -111,6 +111,7 @@ def test_yaml_list_and_numbered_files(tmp_path: Path) -> None:
     assert numbered[0] is None and numbered[1].track == "racer_wide" and numbered[2] is None
 
 
+@pytest.mark.slow(reason="many cases, each a real env: over 6 s in all")
 @pytest.mark.parametrize(
     ("value", "text", "fragment"),
     [
@@ -144,6 +145,7 @@ def track_lengths(run_dir: Path) -> dict[str, set[float]]:
     return out
 
 
+@pytest.mark.slow(reason="many cases, each a real env: over 6 s in all")
 @pytest.mark.parametrize("form", ["worker-config", "from-drfc"])
 def test_train_drives_each_workers_own_track(tmp_path: Path, form: str) -> None:
     write(tmp_path / "worker-2.env", "DR_WORLD_NAME=racer_wide\n")
@@ -167,6 +169,7 @@ def test_train_drives_each_workers_own_track(tmp_path: Path, form: str) -> None:
     assert config.env.track == "racer_loop" and config.worker_env(1).track == "racer_wide"
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_racer_check_reads_each_workers_file(tmp_path: Path) -> None:
     write(tmp_path / "run.env", "DR_WORKERS=2\nDR_TRAIN_MULTI_CONFIG=True\n")
     write(tmp_path / "worker-2.env", "DR_WORLD_NAME=racer_wide\nDR_CAR_COLOR=Red\n")

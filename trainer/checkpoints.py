@@ -10,9 +10,9 @@ import time
 
 from common.bus import Bus
 from common.config import RunConfig
-from common.policy import acting_to_bytes, checkpoint_to_bytes, state_dict_to_bytes
 from common.protocol import PolicyVersion
 from common.retry import Outage
+from common.weights import acting_to_bytes, checkpoint_to_bytes, state_dict_to_bytes
 from model_store import RunStore, StoreKeyError
 from model_store.runs import METRICS_FILE, checkpoint_key
 
@@ -52,7 +52,9 @@ class Checkpoints:
         }
         return self.store_outage.call(
             f"save checkpoint {version}",
-            lambda: self.runs.save_checkpoint(self.run_id, version, payload, meta, optimizer_bytes, acting),
+            lambda: self.runs.save_checkpoint(
+                self.run_id, version, payload, meta, optimizer=optimizer_bytes, acting=acting
+            ),
         )
 
     def prune(self, keep_optimizers: set[int]) -> None:

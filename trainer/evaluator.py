@@ -17,7 +17,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import KW_ONLY, asdict, dataclass, field
 from functools import partial
 from pathlib import Path
 
@@ -26,14 +26,17 @@ import torch
 
 from common.action_space import default_action_space, load_action_space
 from common.bus import Bus
+from common.conditions import Condition, apply_condition
 from common.config import EnvConfig, RunConfig
+from common.defaults import CHECK_EPISODES, DEFAULT_GIVE_UP_S, EVAL_ACTION_NOISE
 from common.framestack import FrameStack
-from common.policy import ActorCritic, load_policy
+from common.policy import ActorCritic
 from common.protocol import EvaluationSummary, PolicyVersion, ProtocolError
 from common.redis_util import redact
-from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
+from common.retry import Outage, redis_transient
 from common.sensors import split_observation
 from common.simtrace import SimTraceRecorder
+from common.weights import load_policy
 from model_store import RunStore, StoreKeyError, is_transient, open_store
 from model_store.localize import localize_env
 from model_store.runs import evaluation_name, evaluation_stamp, simtrace_key
@@ -47,11 +50,11 @@ log = logging.getLogger("racer.evaluator")
 class EvalSettings:
     """How to evaluate a checkpoint."""
 
-    episodes: int = 6
+    episodes: int = CHECK_EPISODES
     """Start positions per direction and track, spread evenly around the lap."""
     both_directions: bool = True
     """Also drive every start in the reverse direction."""
-    action_noise: float = 0.1
+    action_noise: float = EVAL_ACTION_NOISE
     """Uniform noise on the commands, as in the env's randomization (0.1 = ±3° steering, ±10 % speed)."""
     tracks: list[str] = field(default_factory=list)
     """Tracks to evaluate on; empty = the run's track."""
@@ -71,6 +74,7 @@ class Trial:
     track: str
     reverse: bool
     start_index: int
+    _: KW_ONLY
     progress: float
     status: str
     steps: int
@@ -114,6 +118,7 @@ def run_trial(
     stack: int,
     start: int,
     reverse: bool,
+    *,
     seed: int,
     deterministic: bool,
     on_step: Callable[[np.ndarray | dict[str, np.ndarray], dict], None] | None = None,
@@ -154,7 +159,16 @@ def run_trial(
     lap = p["sim_time"] if status == "lap_complete" else None
     steps = info["steps"]
     return Trial(
-        env.track.name, reverse, start, p["progress"], status, steps, lap, trajectory, len(pauses), sum(pauses)
+        env.track.name,
+        reverse,
+        start,
+        progress=p["progress"],
+        status=status,
+        steps=steps,
+        lap_time_s=lap,
+        trajectory=trajectory,
+        resets=len(pauses),
+        penalty_s=sum(pauses),
     )
 
 
@@ -165,6 +179,7 @@ class _Driving:
     env: RacerEnv
     start: int
     reverse: bool
+    _: KW_ONLY
     stacker: FrameStack
     obs: np.ndarray
     """The stacked camera observation."""
@@ -197,18 +212,18 @@ class _Driving:
             self.env.track.name,
             self.reverse,
             self.start,
-            p["progress"],
-            status,
-            self.info["steps"],
-            lap,
-            self.trajectory,
-            len(self.pauses),
-            sum(self.pauses),
+            progress=p["progress"],
+            status=status,
+            steps=self.info["steps"],
+            lap_time_s=lap,
+            trajectory=self.trajectory,
+            resets=len(self.pauses),
+            penalty_s=sum(self.pauses),
         )
 
 
 def _start(
-    env: RacerEnv, stack: int, start: int, reverse: bool, seed: int, record: bool, episode: int, resets: bool = False
+    env: RacerEnv, stack: int, start: int, reverse: bool, *, seed: int, record: bool, episode: int, resets: bool = False
 ) -> _Driving:
     """Reset ``env`` for one trial and hold its first observation."""
     observation, info = env.reset(seed=seed, options={"start_index": start, "reverse": reverse, "evaluation": resets})
@@ -217,7 +232,9 @@ def _start(
         recorder.reset(info, episode)
     stacker = FrameStack(stack)
     frame, lidar = split_observation(observation)
-    return _Driving(env, start, reverse, stacker, stacker.reset(frame), lidar, info, recorder)
+    return _Driving(
+        env, start, reverse, stacker=stacker, obs=stacker.reset(frame), lidar=lidar, info=info, recorder=recorder
+    )
 
 
 def drive_lockstep(model: ActorCritic, trials: list[_Driving], deterministic: bool) -> None:
@@ -277,7 +294,9 @@ def evaluate(
             start, seed = trial_start(env, settings, reverse, i)
             episode = len(trials) + len(driving)
             record = recorder is not None
-            driving.append(_start(env, stack, start, reverse, seed, record, episode, settings.resets))
+            driving.append(
+                _start(env, stack, start, reverse, seed=seed, record=record, episode=episode, resets=settings.resets)
+            )
         try:
             drive_lockstep(model, driving, settings.deterministic)
         finally:
@@ -296,6 +315,7 @@ def evaluate_checkpoint(
     env_cfg: EnvConfig,
     version: int | str,
     settings: EvalSettings,
+    *,
     recorder: SimTraceRecorder | None = None,
     device: torch.device | str = "cpu",
 ) -> dict:
@@ -335,13 +355,45 @@ def save_evaluation(runs: RunStore, record: dict) -> bool:
     return True
 
 
+def evaluate_conditions(
+    runs: RunStore,
+    run: RunConfig,
+    env_cfg: EnvConfig,
+    version: int,
+    settings: EvalSettings,
+    *,
+    conditions: list[Condition],
+    device: torch.device | str = "cpu",
+) -> list[dict]:
+    """The checkpoint's trials driven again in each held-out condition (``common.conditions``): per condition its
+    name and what it is, laps out of the trials, progress and lap times, and its trials (without trajectories)."""
+    keep = ("episodes", "completion_rate", "mean_progress", "best_lap_s", "mean_lap_s", "off_track", "crashed", "score")
+    rows = []
+    for condition in conditions:
+        record = evaluate_checkpoint(
+            runs, run, apply_condition(env_cfg, condition), version, settings, recorder=None, device=device
+        )
+        rows.append(
+            {
+                "name": condition.name,
+                "about": condition.about,
+                "car": condition.car,
+                "laps": len(record["lap_times_s"]),
+                **{k: record[k] for k in keep},
+                "trials": [{k: v for k, v in t.items() if k != "trajectory"} for t in record["trials"]],
+            }
+        )
+    return rows
+
+
 @dataclass
 class EvaluatorOptions:
-    """How the evaluator process reaches the run and how often it evaluates."""
+    """How the evaluator process reaches the run and how often it evaluates (keyword-only after the store)."""
 
     run_id: str
     redis_url: str
     store: str = "."
+    _: KW_ONLY
     s3_endpoint: str | None = None
     every: int = 1
     """Evaluate every N-th policy version (always the newest one when it falls behind)."""
@@ -350,6 +402,9 @@ class EvaluatorOptions:
     """How long to ride out one Redis or store outage before exiting with an error, seconds."""
     device: str = "auto"
     """Where the network acts: ``auto``, ``cpu``, ``cuda`` or ``cuda:N`` (``trainer.device``)."""
+    conditions: list[Condition] = field(default_factory=list)
+    """Held-out conditions each checkpoint is also driven in (``racer evaluator --condition``): reported in its
+    evaluation record's ``conditions``; ``best`` stays the run's own world's."""
 
 
 def run_evaluator(opts: EvaluatorOptions, stop: threading.Event | None = None) -> None:
@@ -380,9 +435,23 @@ def run_evaluator(opts: EvaluatorOptions, stop: threading.Event | None = None) -
                     run = on_store("read the run", partial(runs.read_config, opts.run_id))
                     env_cfg = on_store("read the run's files", partial(localize_env, run, runs, Path(tmp)))
                 recorder = SimTraceRecorder()
-                evaluate = partial(evaluate_checkpoint, runs, run, env_cfg, pv.version, opts.settings, recorder, device)
+                evaluate = partial(
+                    evaluate_checkpoint, runs, run, env_cfg, pv.version, opts.settings, recorder=recorder, device=device
+                )
                 try:
                     record = on_store(f"evaluate v{pv.version}", evaluate)
+                    if opts.conditions:
+                        held_out = partial(
+                            evaluate_conditions,
+                            runs,
+                            run,
+                            env_cfg,
+                            pv.version,
+                            opts.settings,
+                            conditions=opts.conditions,
+                            device=device,
+                        )
+                        record["conditions"] = on_store(f"evaluate v{pv.version} in the conditions", held_out)
                 except StoreKeyError:  # pruned while we were behind: the next newest one will do
                     done = pv.version
                     continue

@@ -157,7 +157,7 @@ class CollapseGuard:
     """The collapse guard of one run: what it has seen (``watch``) and done (``stability``), and its reads."""
 
     def __init__(
-        self, hp: Hyperparameters, run_id: str, bus: Bus, runs: RunStore, redis_outage: Outage, store_outage: Outage
+        self, hp: Hyperparameters, run_id: str, bus: Bus, runs: RunStore, *, redis_outage: Outage, store_outage: Outage
     ) -> None:
         self.hp, self.run_id, self.bus, self.runs = hp, run_id, bus, runs
         self.redis_outage, self.store_outage = redis_outage, store_outage

@@ -40,6 +40,10 @@ class Stats:
         elapsed = time.monotonic() - self.started
         return self.env_steps / elapsed if elapsed > 0 else 0.0
 
+    def counts(self) -> dict[str, int]:
+        """What a checkpoint's metadata records of the run so far."""
+        return {"env_steps": self.env_steps, "episodes": self.episodes, "iteration": self.iteration}
+
     def figures(self) -> dict:
         """The counters of the trainer's status (the last 20 episodes for the means)."""
         recent = self.recent[-20:]
@@ -66,7 +70,14 @@ class SegmentIntake:
     """The buffer of accepted segments, filled by ``read`` from the run's stream; counts what it drops."""
 
     def __init__(
-        self, bus: Bus, run_id: str, obs_spec: ObsSpec, obs_shape: tuple[int, ...], n_actions: int | None, stats: Stats
+        self,
+        bus: Bus,
+        run_id: str,
+        obs_spec: ObsSpec,
+        obs_shape: tuple[int, ...],
+        *,
+        n_actions: int | None,
+        stats: Stats,
     ) -> None:
         self.bus, self.run_id = bus, run_id
         self.obs_shape, self.n_actions, self.lidar = obs_shape, n_actions, obs_spec.lidar

@@ -13,19 +13,11 @@ import torch
 from common.action_space import ActionSpace
 from common.config import FRAME_HEIGHT, FRAME_WIDTH, PretrainedError, RunConfig
 from common.deadline import Deadline
-from common.policy import (
-    ActorCritic,
-    Precision,
-    action_space_spec,
-    build_policy,
-    checkpoint_from_bytes,
-    load_weights,
-    misfit,
-    state_dict_from_bytes,
-)
+from common.policy import ActorCritic, Precision, action_space_spec, build_policy
 from common.protocol import Segment
 from common.sensors import ObsSpec, observation_spec
-from trainer.ppo import PPOBatch, compute_gae, cooldown_factor, scheduled, update
+from common.weights import checkpoint_from_bytes, load_weights, misfit, state_dict_from_bytes
+from trainer.ppo import PPOBatch, StepArgs, compute_gae, cooldown_factor, scheduled, update
 from trainer.precision import fastest, grad_scaler, precision_candidates, time_precisions
 
 log = logging.getLogger("racer.trainer")
@@ -133,7 +125,13 @@ class Learner:
             return
         hp = self.hp
         minibatch = batch.select(torch.arange(min(len(batch), hp.batch_size), device=batch.obs.device))
-        step_args = (hp.clip_epsilon, beta_entropy, hp.value_loss_coef, hp.value_loss_kind, hp.max_grad_norm)
+        step_args = StepArgs(
+            clip_eps=hp.clip_epsilon,
+            beta_entropy=beta_entropy,
+            value_coef=hp.value_loss_coef,
+            loss_type=hp.value_loss_kind,
+            max_grad_norm=hp.max_grad_norm,
+        )
         self.precision_ms = time_precisions(self.model, minibatch, self.precision_choices, step_args, hp.lr)
         self.precision = fastest(self.precision_ms)
         self.precision_choices = (self.precision,)
@@ -163,8 +161,8 @@ def make_batch(segments: list[Segment], gamma: float, lam: float) -> PPOBatch:
             torch.tensor(a["terminated"], dtype=torch.float32),
             torch.tensor(a["truncated"], dtype=torch.float32),
             t["next_values"],
-            gamma,
-            lam,
+            gamma=gamma,
+            lam=lam,
         )
         parts["obs"].append(torch.from_numpy(a["obs"].copy()))
         if "lidar" in a:

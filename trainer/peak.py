@@ -5,7 +5,7 @@ arithmetic, on the same threads, timed in the same run: the share of what this C
 gets.
 
 * The peak (:class:`Gemm`): ``C = A @ B`` with square ``A``, ``B`` of :data:`GEMM_SIZE` (compute-bound: 2·n³ FLOPs
-  on 3·n² values), in fp32, and in bf16 where its kernels are native (:func:`common.policy.bf16_is_fast`; emulated
+  on 3·n² values), in fp32, and in bf16 where its kernels are native (:func:`trainer.precision.bf16_is_fast`; emulated
   bf16 is no hardware peak). It is what ``torch.mm`` reaches (MKL for fp32, oneDNN for bf16), not a figure from
   the data sheet: the clock the cores keep under load is in it, and it is what a convolution's GEMM could reach.
 * The work (:func:`layer_costs`, :func:`step_flops`): the multiply-accumulates of the network's convolutions and
@@ -28,7 +28,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from common.policy import ActorCritic, Precision, bf16_is_fast
+from common.policy import ActorCritic, Precision
+from trainer.precision import bf16_is_fast
 
 GEMM_SIZE = 1024
 """Side of the square matrices: 2.1 GFLOP a product, compute-bound (on the 2-core AMD EPYC 1024 and 2048 gave the

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Literal
+from typing import Literal, TypedDict
 
 import torch
 import torch.nn.functional as F
@@ -22,6 +22,16 @@ ValueLossKind = Literal["huber", "mse"]
 ScheduleKind = Literal["constant", "linear"]
 
 
+class StepArgs(TypedDict):
+    """:func:`minibatch_step`'s loss settings, to pass as ``**args`` (the trainer's probes and benchmarks)."""
+
+    clip_eps: float
+    beta_entropy: float
+    value_coef: float
+    loss_type: ValueLossKind
+    max_grad_norm: float
+
+
 @torch.no_grad()
 def compute_gae(
     rewards: torch.Tensor,
@@ -29,6 +39,7 @@ def compute_gae(
     terminated: torch.Tensor,
     truncated: torch.Tensor,
     next_values: torch.Tensor,
+    *,
     gamma: float,
     lam: float,
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -233,7 +244,15 @@ def update(
         for start in range(0, len(batch), minibatch_size):
             mb = batch.select(order[start : start + minibatch_size])
             stats = minibatch_step(
-                model, optimizer, mb, clip_eps, beta_entropy, value_coef, loss_type, max_grad_norm, scaler
+                model,
+                optimizer,
+                mb,
+                clip_eps=clip_eps,
+                beta_entropy=beta_entropy,
+                value_coef=value_coef,
+                loss_type=loss_type,
+                max_grad_norm=max_grad_norm,
+                scaler=scaler,
             )
             for key, value in stats.items():
                 sums[key] = sums.get(key, 0.0) + value
@@ -290,6 +309,7 @@ def minibatch_step(
     model: nn.Module,
     optimizer: torch.optim.Optimizer,
     mb: PPOBatch,
+    *,
     clip_eps: float,
     beta_entropy: float,
     value_coef: float,

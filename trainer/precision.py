@@ -1,17 +1,15 @@
 """The arithmetic of the trainer's PPO updates: the trunk in fp32, or in bf16 under autocast.
 
 ``auto`` measures rather than guesses. A CPU with native bf16 kernels (AVX512-BF16 or AMX) is not always faster in
-bf16: on the 2-core AMD EPYC this project was first measured on, a bf16 minibatch step took 40 ms against 66 ms in
-fp32, but on an Intel Xeon with AVX512-BF16 and no AMX (2026-11-27, ``racer bench update`` and DeepRacer's shallow
-network on three stacked frames) it took 87-97 ms against 64-69 ms, so picking bf16 for the flag alone made every
-update there about 1.4 times slower. Where both can run natively, the trainer times a few minibatch steps of each
+bf16: on some it is, on others bf16 is the slower (docs/speed.md has the timings of both kinds of machine). Where
+both can run natively, the trainer times a few minibatch steps of each
 on a copy of its own network and its first batch, under the threads and load it trains with, and keeps the faster.
 Where bf16 would be emulated (no native kernels) it is always slower, and fp32 is used without a measurement.
 Where the two are close, the choice can differ between runs on one machine, and with it the updates' rounding: a
 run that must repeat bit for bit names its precision (``racer train --precision fp32``).
 
 On a CUDA device (``--device``, ``trainer/device.py``) nothing is timed: ``auto`` is a bf16 trunk where the GPU has
-native bf16 (compute capability 8 and up: :func:`common.policy.bf16_is_fast`), else an fp16 trunk, whose gradients
+native bf16 (compute capability 8 and up: :func:`bf16_is_fast`), else an fp16 trunk, whose gradients
 are loss-scaled by a ``torch.amp.GradScaler`` (:func:`grad_scaler`: fp16's 5-bit exponent underflows small
 gradients). Either way only the trunk runs under autocast; the weights, the heads, the losses and Adam's state stay
 float32. ``fp16`` is refused on a CPU (no fast kernels there), ``bf16`` on a GPU without it. None of the CUDA path
@@ -28,8 +26,8 @@ import torch
 
 from common.config import check_precision
 from common.errors import OptionError
-from common.policy import ActorCritic, Precision, bf16_is_fast
-from trainer.ppo import PPOBatch, ValueLossKind, minibatch_step
+from common.policy import ActorCritic, Precision
+from trainer.ppo import PPOBatch, StepArgs, minibatch_step
 
 PROBE_WARMUP = 2
 """Untimed steps per precision first: oneDNN builds its kernels for a shape and dtype on the first call."""
@@ -40,11 +38,28 @@ PROBE_STEPS = 2
 1.3 s on a machine where a step takes 65-100 ms, once per trainer process."""
 
 
+def bf16_is_fast(device: str = "cpu") -> bool:
+    """True where bf16 matrix kernels run natively (AVX512-BF16 or AMX on a CPU; a CUDA GPU of compute capability 8
+    or more for ``cuda`` / ``cuda:N``), so that a bf16 trunk is faster than fp32. Elsewhere bf16 is emulated, and
+    slower."""
+    if device.startswith("cuda"):
+        if not torch.cuda.is_available():
+            return False
+        with torch.cuda.device(torch.device(device)):  # is_bf16_supported asks the current device
+            return torch.cuda.is_bf16_supported(including_emulation=False)
+    # torch.cpu's checks are private but stable since 2.3; without them, assume emulation (fp32 is then faster).
+    native = (
+        getattr(torch.cpu, "_is_avx512_bf16_supported", lambda: False)()
+        or getattr(torch.cpu, "_is_amx_tile_supported", lambda: False)()
+    )
+    return bool(native and torch.backends.mkldnn.is_available())
+
+
 def precision_candidates(precision: str, device: torch.device | None = None) -> tuple[Precision, ...]:
     """What ``precision`` may run as on ``device`` (None: the CPU).
 
     On the CPU: itself for ``fp32`` or ``bf16``; for ``auto``, both where bf16 kernels are native
-    (:func:`common.policy.bf16_is_fast`; the faster is then measured), fp32 alone where they are not. On a CUDA
+    (:func:`bf16_is_fast`; the faster is then measured), fp32 alone where they are not. On a CUDA
     device: itself, and for ``auto`` bf16 where the GPU has it, else fp16. :class:`~common.errors.OptionError` for
     any other name, for ``fp16`` on the CPU and for ``bf16`` on a GPU without bf16."""
     check_precision(precision)
@@ -74,13 +89,14 @@ def time_precisions(
     model: ActorCritic,
     minibatch: PPOBatch,
     candidates: tuple[Precision, ...],
-    step_args: tuple[float, float, float, ValueLossKind, float],
+    step_args: StepArgs,
     lr: float = 3e-4,
 ) -> dict[str, float]:
     """Milliseconds per PPO minibatch step (forward, backward, fused Adam) of a copy of ``model`` in each candidate
     precision, on ``minibatch``; the median of :data:`PROBE_ROUNDS` interleaved rounds. ``step_args`` are
-    :func:`trainer.ppo.minibatch_step`'s clip_eps, beta_entropy, value_coef, loss_type and max_grad_norm. ``model``
-    itself (weights, precision, mode) is not touched, nor torch's random state (a network with dropout draws from it).
+    :func:`trainer.ppo.minibatch_step`'s loss settings by name (clip_eps, beta_entropy, value_coef, loss_type and
+    max_grad_norm). ``model`` itself (weights, precision, mode) is not touched, nor torch's random state (a network
+    with dropout draws from it).
     """
     with torch.random.fork_rng(devices=[]):
         return _time_copies(model, minibatch, candidates, step_args, lr)
@@ -90,7 +106,7 @@ def _time_copies(
     model: ActorCritic,
     minibatch: PPOBatch,
     candidates: tuple[Precision, ...],
-    step_args: tuple[float, float, float, ValueLossKind, float],
+    step_args: StepArgs,
     lr: float,
 ) -> dict[str, float]:
     copies = {}
@@ -99,14 +115,15 @@ def _time_copies(
         twin.set_trunk_precision(precision)
         twin.train()
         copies[precision] = (twin, torch.optim.Adam(twin.parameters(), lr=lr, fused=True))
-    rounds = time_steps(copies, minibatch, step_args, PROBE_WARMUP, PROBE_ROUNDS, PROBE_STEPS)
+    rounds = time_steps(copies, minibatch, step_args, warmup=PROBE_WARMUP, rounds=PROBE_ROUNDS, steps=PROBE_STEPS)
     return {precision: statistics.median(ms) for precision, ms in rounds.items()}
 
 
 def time_steps(
     cases: dict[str, tuple[torch.nn.Module, torch.optim.Optimizer]],
     minibatch: PPOBatch,
-    step_args: tuple[float, float, float, ValueLossKind, float],
+    step_args: StepArgs,
+    *,
     warmup: int,
     rounds: int,
     steps: int,
@@ -117,13 +134,13 @@ def time_steps(
     too."""
     for model, optimizer in cases.values():
         for _ in range(warmup):
-            minibatch_step(model, optimizer, minibatch, *step_args)
+            minibatch_step(model, optimizer, minibatch, **step_args)
     ms: dict[str, list[float]] = {name: [] for name in cases}
     for _ in range(rounds):
         for name, (model, optimizer) in cases.items():
             start = time.perf_counter()
             for _ in range(steps):
-                minibatch_step(model, optimizer, minibatch, *step_args)
+                minibatch_step(model, optimizer, minibatch, **step_args)
             ms[name].append((time.perf_counter() - start) / steps * 1e3)
     return ms
 

@@ -17,7 +17,9 @@ import logging
 import resource
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable
+from dataclasses import KW_ONLY, asdict, dataclass, field
+from functools import partial
 
 import torch
 
@@ -25,15 +27,18 @@ from common.action_space import action_space_from_json
 from common.bus import Bus
 from common.config import RunConfig
 from common.deadline import Deadline
+from common.defaults import DEFAULT_GIVE_UP_S, DEFAULT_TRAINER_THREADS
 from common.policy import ActorCritic
+from common.protocol import EndReason
 from common.redis_util import redact
-from common.retry import DEFAULT_GIVE_UP_S, Outage, redis_transient
+from common.retry import Outage, redis_transient
 from model_store import RunStore, is_transient, open_store
 from trainer.checkpoints import Checkpoints
 from trainer.device import resolve_device
 from trainer.guard import BestEvaluation, CollapseGuard, Stability
 from trainer.intake import SegmentIntake, Stats
 from trainer.learner import Learner, make_batch, make_optimizer
+from trainer.liveness import Liveness, end_reason
 from trainer.precision import precision_candidates
 from trainer.reporting import Reporter, WorkerWatch, metrics_row, summary_writer
 
@@ -44,17 +49,18 @@ log = logging.getLogger("racer.trainer")
 
 @dataclass
 class TrainerOptions:
-    """How to reach the run and when to stop."""
+    """How to reach the run and when to stop (keyword-only after the store)."""
 
     redis_url: str
     store: str = "."
+    _: KW_ONLY
     s3_endpoint: str | None = None
     resume: bool = False
     """Continue from the run's latest checkpoint instead of starting it."""
     deadline: Deadline | None = None
     """When to stop (``common.deadline``: the run's one deadline, fixed as its roles started); None = until
     stopped. The learning-rate cool-down counts back from it."""
-    torch_threads: int = 1
+    torch_threads: int = DEFAULT_TRAINER_THREADS
     """Threads for PyTorch in the trainer (the workers use one each)."""
     run_files: dict[str, bytes] = field(default_factory=dict)
     """Files written into a new run: reward_function.py, model_metadata.json, hyperparameters.json."""
@@ -76,6 +82,10 @@ class Trainer:
     concern is a part of its own: ``intake`` (segments), ``learner`` (network, PPO step), ``checkpoints`` (store
     and policy key), ``collapse_guard``, ``reporter`` (metrics, TensorBoard) and ``heartbeats`` (live workers)."""
 
+    stop_when: Callable[[Trainer], bool] | None = None
+    """A public hook: asked once each turn of the loop, before the check for a batch; True stops the loop there,
+    between two updates (a bench closes its measured window with it)."""
+
     def __init__(self, run: RunConfig, opts: TrainerOptions, stop: threading.Event | None = None) -> None:
         self.run, self.opts, self.hp = run, opts, run.hyperparams
         self.device = resolve_device(opts.device)
@@ -89,12 +99,12 @@ class Trainer:
         self.stats = Stats()
         self.checkpoints = Checkpoints(run, self.runs, self.bus, self.store_outage)
         self.collapse_guard = CollapseGuard(
-            self.hp, run.run_id, self.bus, self.runs, self.redis_outage, self.store_outage
+            self.hp, run.run_id, self.bus, self.runs, redis_outage=self.redis_outage, store_outage=self.store_outage
         )
         self.tb = summary_writer(opts.store, run.run_id) if opts.tensorboard else None
         self.reporter = Reporter(self.runs, run.run_id, self.store_outage, self.tb)
-        self.metrics = self.reporter.metrics
         self.heartbeats = WorkerWatch(self.bus, run.heartbeat_ttl_s)
+        self.liveness = Liveness(self.bus, stopping=self.stop)
 
     @property
     def stability(self) -> Stability:
@@ -114,6 +124,7 @@ class Trainer:
     # --- start --------------------------------------------------------------------------------
     def start(self) -> None:
         """Resume from the newest whole checkpoint, or write the run's files and publish version 0."""
+        self.liveness.start()
         if not self.opts.resume:
             files = self.opts.run_files
             self.store_outage.call("write the run's files", lambda: self.checkpoints.write_run_files(files))
@@ -137,17 +148,14 @@ class Trainer:
             " or ".join(choices) + (" (the faster, timed on the first batch)" if len(choices) > 1 else ""),
             torch.get_num_threads(),
         )
+        self.liveness.set_phase("collecting", self.version)
 
     def _build(self) -> None:
         """The learner and the intake for the run's sensors and action space (its stored model_metadata.json)."""
         actions = action_space_from_json(self.runs.read_file(self.run.run_id, "model_metadata.json"))
         self.learner = Learner(self.run, actions, self.device, self.opts.precision)
-        learner = self.learner
-        self.obs_spec, self.obs_shape, self.n_actions = learner.obs_spec, learner.obs_shape, learner.n_actions
-        self.intake = SegmentIntake(
-            self.bus, self.run.run_id, learner.obs_spec, learner.obs_shape, learner.n_actions, self.stats
-        )
-        self.buffer = self.intake.buffer
+        spec, shape, n = self.learner.obs_spec, self.learner.obs_shape, self.learner.n_actions
+        self.intake = SegmentIntake(self.bus, self.run.run_id, spec, shape, n_actions=n, stats=self.stats)
 
     def _resume(self) -> None:
         payload, optimizer, meta = self.checkpoints.newest()
@@ -159,7 +167,7 @@ class Trainer:
         self.collapse_guard.resume(meta)
         # A Redis that outlived the previous trainer (compose) still lists the evaluations it wrote to TensorBoard.
         self.reporter.tb_evaluated = self.version
-        self.metrics[:] = self.checkpoints.metrics()
+        self.reporter.metrics[:] = self.checkpoints.metrics()
         log.info("resumed run %s at version %d (%d env steps)", self.run.run_id, self.version, self.stats.env_steps)
 
     def _load_pretrained(self) -> None:
@@ -170,14 +178,7 @@ class Trainer:
 
     def _checkpoint(self, **extra: object) -> dict:
         """Save the current version (``extra`` goes into its metadata)."""
-        meta = {
-            "env_steps": self.stats.env_steps,
-            "episodes": self.stats.episodes,
-            "iteration": self.stats.iteration,
-            "stability": asdict(self.stability),
-            "created": time.time(),
-            **extra,
-        }
+        meta = {**self.stats.counts(), "stability": asdict(self.stability), "created": time.time(), **extra}
         state = self.model.state_dict()
         return self.checkpoints.save(self.version, state, self.optimizer.state_dict(), meta)
 
@@ -195,18 +196,27 @@ class Trainer:
     def _publish(self) -> None:
         self.checkpoints.publish(self.version)
 
+    def close(self) -> None:
+        """Stop the heartbeat thread and close TensorBoard's file: ``run_trainer`` does; code that drives a Trainer
+        itself calls it when done."""
+        self.liveness.stop()
+        self.reporter.close()
+
     # --- the loop -----------------------------------------------------------------------------
-    def run_forever(self) -> None:
-        """Read, train, publish until stopped, past the deadline or done."""
+    def run_forever(self) -> EndReason:
+        """Read, train, publish until stopped, past the deadline or done; returns why it stopped."""
         last_status = 0.0
         while not self.stop.is_set() and (self.opts.deadline is None or not self.opts.deadline.passed()):
             self.redis_outage.call("read segments", lambda: self.read(block_ms=500))
+            if self.stop_when is not None and self.stop_when(self):
+                break
             if self.ready():
                 self.train()
             if time.monotonic() - last_status > 1.0:
                 self.redis_outage.call("write the status", self.housekeeping)
                 if self.tb is not None:
-                    self.redis_outage.call("read the evaluations", self.tensorboard_evaluations)
+                    read = partial(self.reporter.tensorboard_evaluations, self.bus, self.stats.env_steps)
+                    self.redis_outage.call("read the evaluations", read)
                 if self.hp.collapse_guard:
                     self.guard()
                 last_status = time.monotonic()
@@ -215,6 +225,7 @@ class Trainer:
                 # counts one per train() call); term_cond_avg_score stops nothing there, so it stops nothing here.
                 break
         self.redis_outage.call("write the status", self.write_status)
+        return end_reason(self.stats.iteration, self.hp.term_cond_max_episodes, self.opts.deadline)
 
     def housekeeping(self) -> None:
         """Once a second: the status for ``racer train``, and the policy key again if Redis lost it (a restarted
@@ -236,7 +247,8 @@ class Trainer:
         """One PPO iteration on the buffer, then checkpoint and publish the next version."""
         t0 = time.monotonic()
         self.redis_outage.call("mark the update", lambda: self.bus.mark_training(self.version))
-        batch = make_batch(self.buffer, self.hp.discount_factor, self.hp.gae_lambda).to(self.device)
+        self.liveness.set_phase("updating", self.version)  # its thread beats on through the update
+        batch = make_batch(self.intake.buffer, self.hp.discount_factor, self.hp.gae_lambda).to(self.device)
         segments = self.intake.take()
         lr = self.learning_rate()
         result = self.learner.update(batch, lr, self.learner.entropy_coef(self.stats.iteration))
@@ -245,8 +257,9 @@ class Trainer:
         self._checkpoint()
         self.redis_outage.call("publish the policy", lambda: (self._publish(), self.bus.clear_training()))
         self.store_outage.call("prune checkpoints", self._prune)
-        steps, lr = int(batch.actions.shape[0]), self.optimizer.param_groups[0]["lr"]
-        row = metrics_row(self.stats, self.version, self.stability, segments, steps, lr, time.monotonic() - t0, result)
+        self.liveness.set_phase("collecting", self.version)
+        steps, lr, dt = int(batch.actions.shape[0]), self.optimizer.param_groups[0]["lr"], time.monotonic() - t0
+        row = metrics_row(self.stats, self.version, self.stability, segments, steps, lr=lr, train_s=dt, losses=result)
         self.reporter.record(row, result, segments)
         log.info("iteration %d: version %d, %s", self.stats.iteration, self.version, result)
         return result
@@ -284,15 +297,12 @@ class Trainer:
         return True
 
     # --- reporting ----------------------------------------------------------------------------
-    def tensorboard_evaluations(self) -> int:
-        """The evaluator's new summaries as TensorBoard scalars (``Reporter.tensorboard_evaluations``)."""
-        return self.reporter.tensorboard_evaluations(self.bus, self.stats.env_steps)
-
     def status(self) -> dict:
         """Progress figures for the display and for ``racer train``."""
         stability = asdict(self.stability)
         return {
             **self.stats.figures(),
+            "trained_env_steps": self.reporter.trained_env_steps(),
             "policy_version": self.version,
             "workers": self.workers(),
             "silent_workers": sorted(self.heartbeats.silent),
@@ -323,10 +333,12 @@ def run_trainer(run: RunConfig, opts: TrainerOptions, stop: threading.Event | No
     trainer = Trainer(run, opts, stop)
     try:
         trainer.start()
-        trainer.run_forever()
+        reason = trainer.run_forever()
+        version, steps = trainer.version, trainer.stats.env_steps
+        trainer.redis_outage.call("record the end", lambda: trainer.liveness.end(reason, version, steps))
         return trainer.status()
     except InterruptedError:  # stopped (SIGTERM) while Redis or the store was unreachable
         log.warning("stopped during an outage at version %d", trainer.version)
         return {"policy_version": trainer.version, "env_steps": trainer.stats.env_steps}
     finally:
-        trainer.reporter.close()
+        trainer.close()

@@ -34,6 +34,7 @@ def metrics_row(
     stability: Stability,
     segments: list[Segment],
     batch_steps: int,
+    *,
     lr: float,
     train_s: float,
     losses: dict,
@@ -76,6 +77,11 @@ class Reporter:
         self.metrics: list[dict] = []
         self.tb_evaluated = -1
         """Newest evaluated version whose figures are in TensorBoard (``tensorboard_evaluations``)."""
+
+    def trained_env_steps(self) -> int:
+        """The env steps the last update trained on: those received (``Stats.env_steps``) less those still waiting
+        in the buffer for the next update, as metrics.jsonl counts them."""
+        return int(self.metrics[-1]["env_steps"]) if self.metrics else 0
 
     def record(self, row: dict, losses: dict, segments: list[Segment]) -> None:
         """Append one update's row (``metrics_row``) to metrics.jsonl, and its figures and the episodes of its

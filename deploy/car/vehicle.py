@@ -13,7 +13,7 @@ used the same calibration.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -89,6 +89,7 @@ class MotorCommand:
     """The policy's steering angle, degrees, positive left."""
     speed_mps: float
     """The policy's speed, m/s."""
+    _: KW_ONLY
     steering_out: float
     """Servo output, driver units."""
     throttle_out: float
@@ -125,5 +126,10 @@ def motor_command(
 ) -> MotorCommand:
     """The outputs for one frame's action."""
     return MotorCommand(
-        frame, action, steering_deg, speed_mps, steering_output(cal, steering_deg), throttle_output(cal, speed_mps)
+        frame,
+        action,
+        steering_deg,
+        speed_mps,
+        steering_out=steering_output(cal, steering_deg),
+        throttle_out=throttle_output(cal, speed_mps),
     )

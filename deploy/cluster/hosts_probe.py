@@ -39,6 +39,7 @@ def snapshot(bus: Bus, ifaces: list[str]) -> dict:
     out["workers"] = {hb.worker_id: {f: getattr(hb, f) for f in HEARTBEAT_FIELDS} for hb in beats}
     stream = bus.segment_stream()
     out["stream"] = None if stream is None else stream._asdict()
+    out["redis_version"] = bus.server_version()  # 6.2 counts the stream's entries differently (common/bus.py)
     net = {}
     for name in ifaces:
         stats = Path("/sys/class/net") / name / "statistics"
@@ -310,6 +311,7 @@ def report(args: argparse.Namespace) -> int:
     fig["segments_sent"] = sent
     fig["segments_sent_by_worker"] = {w: last_beats.get(w, 0) for w in ports}
     fig["segments_added_to_stream"] = added
+    fig["redis_version"] = final.get("redis_version")
     fig["segments_accepted"] = accepted
     fig["segments_accepted_by_worker"] = final["trainer"]["segments_by_worker"]
     fig["segments_dropped"] = drops
@@ -387,6 +389,7 @@ def lines(fig: dict, checks: list[tuple[str, bool]]) -> str:
             f"segments_added_to_stream: {fig['segments_added_to_stream']}",
             f"segments_accepted: {fig['segments_accepted']}",
             f"segments_dropped: {json.dumps(fig['segments_dropped'], sort_keys=True)}",
+            f"redis_version: {fig['redis_version']}",
             f"script_s: {_n(fig['script_s'], '.0f')}",
             f"checks_passed: {sum(ok for _, ok in checks)}/{len(checks)}",
         ]

@@ -3,8 +3,9 @@
 ``env`` (env steps/s and its parts), ``worker`` (a rollout worker with K envs), ``update`` (a PPO minibatch step
 against the GEMM peak), ``wire`` (bytes a worker sends and downloads), ``loop`` (``transport`` and end-to-end
 throughput), ``scale`` (1…64 workers' load on one trainer), ``soak`` (a long run's memory), ``view`` (the cost of
-``racer view``), ``train`` (time to a robust lap against SB3 PPO), ``race`` (racing against ``racer limit``) and ``oa``
-(object avoidance and head-to-bot). Each module's ``command`` checks the command's options (bad ones raise
+``racer view``), ``train`` (time to a robust lap against SB3 PPO), ``race`` (racing against ``racer limit``), ``oa``
+(object avoidance and head-to-bot), ``calibrate`` (the time of ``racer calibrate``) and ``transfer`` (the DeepRacer
+paper's Table II in simulation). Each module's ``command`` checks the command's options (bad ones raise
 :class:`common.errors.OptionError`), runs the benchmark and returns a :class:`Report`; ``racer/commands/bench.py``
 only registers the commands, parses their options and shows the report.
 """

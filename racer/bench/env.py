@@ -119,9 +119,9 @@ def env_parts_us(env: RacerEnv, steps: int, extended: bool = False) -> dict[str,
 
     def camera() -> None:
         if extended:
-            env._camera_frame(ph.pose)
+            env.camera_frame(ph.pose)
         else:
-            env._observe()
+            env.observe()
 
     parts: dict[str, Callable[[], None]] = {"camera": camera}
     if extended and env.lidar is not None:
@@ -134,14 +134,7 @@ def env_parts_us(env: RacerEnv, steps: int, extended: bool = False) -> dict[str,
     elif extended:
         out["lidar"] = None
     if extended and env.race.slots:
-        progress, start = result.params["progress"], task.start_fraction
-
-        def move_objects() -> None:
-            env.objects = env.race.step()
-            env._place_objects()
-            env.race.crashed(ph.pose, progress, start)
-
-        parts["objects"] = move_objects
+        parts["objects"] = env.move_objects
     elif extended:
         out["objects"] = None
     parts.update(task=task_step, reward=reward)
@@ -206,6 +199,7 @@ def command(
     track: str,
     steps: int,
     repeats: int,
+    *,
     camera: str,
     car_calibration: str | None,
     sensor: str | None,

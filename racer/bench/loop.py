@@ -49,6 +49,7 @@ def bench_transport(track: str = DEFAULT_TRACK, segment_steps: int = 32, segment
             push.append(t2 - t1)
             pull.append(t3 - t2)
         worker.close()
+        trainer.close()
     transport = [a + b for a, b in zip(push, pull, strict=True)]
     return {
         "segment_steps": segment_steps,

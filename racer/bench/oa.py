@@ -61,7 +61,7 @@ MIN_TRIALS = 10
 """A checkpoint counts as robust when it completes every one of at least this many evaluation trials."""
 
 
-@dataclass
+@dataclass(kw_only=True)
 class BenchOASettings:
     """What ``racer bench oa`` runs."""
 
@@ -158,7 +158,14 @@ def run_seed(settings: BenchOASettings, seed: int) -> dict[str, Any]:
             seed=seed,
             race=race,
         )
-    curve, guard = train_from_scratch(run, files, settings.workers, settings.minutes, settings.eval_trials, oa_curve)
+    curve, guard = train_from_scratch(
+        run,
+        files,
+        workers=settings.workers,
+        minutes=settings.minutes,
+        eval_episodes=settings.eval_trials,
+        read_curve=oa_curve,
+    )
     figures = seed_figures(curve, min(MIN_TRIALS, settings.eval_trials))
     figures.update(seed=seed, rollbacks=guard["rollbacks"], curve=curve)
     return figures
@@ -235,6 +242,7 @@ def command(
     race_type: str,
     seeds: list[int],
     minutes: float,
+    *,
     track: str,
     workers: int,
     eval_trials: int,
@@ -251,7 +259,14 @@ def command(
     except ValueError:
         raise OptionError(f"--race-type {race_type!r}: racer bench oa races OBJECT_AVOIDANCE or HEAD_TO_BOT") from None
     load_track(track)  # a bad track fails now, not after the first seed's training
-    settings = BenchOASettings(seeds, minutes, race.race_type.value, track, workers, eval_trials)
+    settings = BenchOASettings(
+        seeds=seeds,
+        minutes=minutes,
+        race_type=race.race_type.value,
+        track=track,
+        workers=workers,
+        eval_trials=eval_trials,
+    )
     result = bench_oa(settings, progress)
     if png:
         plot_oa(result, png)

@@ -22,8 +22,8 @@ figures:
 * ``best_command_speeds``: the share of the steps of the best robust checkpoint's evaluation laps at each commanded
   speed (``{"1.5": 1.0}``: it drove every step at the slowest action; for a continuous space the speeds are counted
   in :data:`SPEED_BIN_MPS` bins, keyed by the bin's lower edge). Each point of a seed's curve has its own
-  ``command_speeds``. A policy that settles on its slowest actions completes laps and stops getting faster (the
-  Gazebo car, 2026-11-27, docs/racing.md); this says so without a simtrace.
+  ``command_speeds``. A policy that settles on its slowest actions completes laps and stops getting faster
+  (docs/racing.md); this says so without a simtrace.
 
 The medians are over the seeds that reached each figure; ``robust_seeds`` says how many lapped robustly at all.
 
@@ -75,22 +75,17 @@ GUARD_HYPERPARAMS = {"collapse_guard": True, "collapse_min_best": 0.9, "target_k
 """DeepRacer's defaults plus racer's stability knobs; learning rate and entropy constant, as in DeepRacer. The guard
 acts only once a checkpoint has been (nearly) robust: in a first 15-minute run it acted from a best of 0.6 of 10
 trials, where completion is still noise, and rolled one seed back 7 times, halving the learning rate each time
-until learning stopped. Linear schedules of the learning rate and entropy to 10 % over 100 updates were measured
-on 2026-11-26 (docs/racing.md): no faster (median best robust lap 1.49 × the limit, against 1.34 × with constant
-rates), so they are not the bench's default. ``racer bench oa`` uses these as they are."""
+until learning stopped. Learning-rate and entropy schedules were no faster (docs/racing.md, "What did not help"),
+so they are not the bench's default. ``racer bench oa`` uses these as they are."""
 RACE_HYPERPARAMS = {**GUARD_HYPERPARAMS, "collapse_slowdown": 0.15}
 """:data:`GUARD_HYPERPARAMS` and the guard's pace rule: a checkpoint whose robust laps are more than 15 % slower than
-the best's counts as collapsed too. Without it two of three seeds of the default car drifted 1-4 s slower after
-their best and stayed there; with it (and ``collapse_lr_floor``'s default), 3 seeds on two AMD EPYC machines,
-2026-11-27: 1.15, 1.18 and 1.24 × the limit (median 1.18 ×; without it, 1.24 × on the first of them), no collapse,
-every final checkpoint 10 of 10 (docs/racing.md)."""
+the best's counts as collapsed too, so that a seed that drifts to slower laps after its best is rolled back rather
+than ending there (the figures with and without it: docs/racing.md)."""
 CONTINUOUS_HYPERPARAMS = {"greedy_action": "expected"}
 """Laid over :data:`RACE_HYPERPARAMS` for a continuous action space: its checkpoints are judged on the mean of their
 clipped action, not on their Gaussian's mean (``Hyperparameters.greedy_action``; ``{"greedy_action": "mean"}``
 restores DeepRacer's). The Gazebo car's Gaussians kept half the range as their spread and their speed means drifted
-below the range, so the evaluator drove 1.5 m/s where training had driven the spread above it. 3 seeds each, two
-Intel Xeons, 2026-11-28: median best robust lap 1.63 × the limit judged on the mean, 1.38 × on the expected action
-(counting a seed with no robust lap as the slowest); the same checkpoints re-judged both ways in docs/racing.md."""
+below the range, so the evaluator drove 1.5 m/s where training had driven the spread above it (docs/racing.md)."""
 REWARD_SHARE_OF_LIMIT = 0.8
 """The reward example's LATERAL_ACCEL and BRAKE are this share of the car's measured figures: a line's target
 speeds a little inside what the car holds, as the example's default (5 m/s² for a car measured at ~6.7) is."""
@@ -98,11 +93,10 @@ COLLAPSED_BELOW = 0.5
 """A checkpoint after the first robust one whose completion falls below this is a collapse."""
 LATE_SHARE = 0.2
 """``late_robust_lap_s`` reads the robust checkpoints made in this last share of the budget. A seed's best can be
-one lucky checkpoint (2026-11-26: the default car's seed 1 had its best, 7.21 s, 24 s in, then lapped in 8-11 s),
-so the bench also says where each seed ended."""
+one lucky checkpoint early in the run, so the bench also says where each seed ended."""
 
 
-@dataclass
+@dataclass(kw_only=True)
 class BenchRaceSettings:
     """What ``racer bench race`` runs."""
 
@@ -325,20 +319,24 @@ def late_robust_lap(curve: list[dict], budget_s: float | None = None) -> float |
 def train_from_scratch(
     run: RunConfig,
     files: dict[str, bytes],
+    *,
     workers: int,
     minutes: float,
     eval_episodes: int,
     read_curve: Callable[[str, RunStore, float], list[dict]],
+    store_dir: Path | None = None,
 ) -> tuple[list[dict], dict[str, int]]:
     """``racer train`` (embedded Redis, the evaluator beside the trainer evaluating every checkpoint from
-    ``eval_episodes`` starts in the track's direction) for ``minutes`` in a throwaway store; then ``read_curve(run_id,
-    runs, t0)`` of the stored run and the collapse guard's ``rollbacks`` and ``slow_rollbacks`` (those its
-    ``collapse_slowdown`` started). ``racer bench race`` and ``bench oa`` share it."""
+    ``eval_episodes`` starts in the track's direction) for ``minutes`` in a throwaway store (or in ``store_dir``,
+    kept for the caller); then ``read_curve(run_id, runs, t0)`` of the stored run and the collapse guard's
+    ``rollbacks`` and ``slow_rollbacks`` (those its ``collapse_slowdown`` started). ``racer bench race``, ``bench
+    oa`` and ``bench transfer`` share it."""
     with EmbeddedRedis() as server, tempfile.TemporaryDirectory(prefix="racer-bench-") as tmp:
+        store = store_dir or Path(tmp, "store")
         opts = RunOptions(
             workers=workers,
             redis_url=server.url,
-            store=str(Path(tmp, "store")),
+            store=str(store),
             time_limit_s=minutes * 60.0,
             eval_every=1,
             eval_episodes=eval_episodes,
@@ -346,7 +344,7 @@ def train_from_scratch(
         )
         t0 = time.time()
         run_train(run, opts, files, Console(file=io.StringIO()))
-        runs = RunStore(LocalStore(Path(tmp, "store")))
+        runs = RunStore(LocalStore(store))
         curve = read_curve(run.run_id, runs, t0)
         rows = runs.read_metrics(run.run_id, missing_ok=True)
     last = rows[-1] if rows else {}
@@ -376,7 +374,14 @@ def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float, constants: 
     run, files = seed_run(settings, seed, constants)
     actions = settings.race_actions()
     read_curve = partial(race_curve, speed_bin=SPEED_BIN_MPS) if is_continuous(actions) else race_curve
-    curve, guard = train_from_scratch(run, files, settings.workers, settings.minutes, settings.eval_starts, read_curve)
+    curve, guard = train_from_scratch(
+        run,
+        files,
+        workers=settings.workers,
+        minutes=settings.minutes,
+        eval_episodes=settings.eval_starts,
+        read_curve=read_curve,
+    )
     figures = seed_figures(curve, limit_s, settings.minutes * 60.0)
     figures.update(seed=seed, **guard, curve=curve)
     return figures
@@ -508,6 +513,7 @@ def command(
     seeds: list[int],
     minutes: float,
     track: str,
+    *,
     car: str,
     workers: int,
     eval_starts: int,
@@ -538,7 +544,16 @@ def command(
         )
     randomization = str(files.randomization) if files.randomization else None
     settings = BenchRaceSettings(
-        seeds, minutes, track, car, workers, eval_starts, overrides, constants, randomization, actions
+        seeds=seeds,
+        minutes=minutes,
+        track=track,
+        car=car,
+        workers=workers,
+        eval_starts=eval_starts,
+        hyperparams=overrides,
+        reward_constants=constants,
+        randomization=randomization,
+        actions=actions,
     )
     result = bench_race(settings, progress)
     if png:

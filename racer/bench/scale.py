@@ -27,7 +27,7 @@ import statistics
 import tempfile
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 from typing import Any
 
 import redis
@@ -46,7 +46,7 @@ from racer.embedded_redis import EmbeddedRedis
 from racer.runconfig import build_run
 from rollout_worker.worker import RolloutWorker, WorkerOptions
 from trainer.peak import cpu_model
-from trainer.ppo import minibatch_step
+from trainer.ppo import StepArgs, minibatch_step
 from trainer.process import Trainer, TrainerOptions, make_batch, make_optimizer
 
 WARMUP_LIMIT_S = 120.0
@@ -90,6 +90,7 @@ class Recording:
     """Env steps in all entries."""
     episodes: int
     """Finished episodes in all entries."""
+    _: KW_ONLY
     worker_steps_per_s: float
     """Env steps per second of the real worker's ``collect`` (env + policy on one PyTorch thread), from the median
     time of a segment."""
@@ -136,9 +137,8 @@ def record_segments(run: RunConfig, files: dict[str, bytes], min_steps: int) -> 
     with EmbeddedRedis() as server, tempfile.TemporaryDirectory(prefix="racer-scale-") as store:
         trainer = Trainer(run, TrainerOptions(server.url, store, run_files=files, tensorboard=False))
         trainer.start()
-        worker = RolloutWorker(WorkerOptions(run.run_id, server.url, store, worker_index=0))
         counting = _CountingStore(store)
-        worker.runs = RunStore(counting)
+        worker = RolloutWorker(WorkerOptions(run.run_id, server.url, store, worker_index=0), runs=RunStore(counting))
         threads = torch.get_num_threads()
         torch.set_num_threads(1)  # as run_worker: one thread per worker process
         try:
@@ -154,17 +154,25 @@ def record_segments(run: RunConfig, files: dict[str, bytes], min_steps: int) -> 
                 steps, episodes = steps + seg.steps, episodes + len(seg.episodes)
             # What a worker downloads per policy version: the store objects its switch to a new version reads.
             counting.bytes_read = 0
-            worker.policy_version = -1  # makes the published version 0 "new" to poll_policy
-            worker.poll_policy()
+            worker.poll_policy(reload=True)
             per_policy = counting.bytes_read
             track = worker.rollouts.track_name
             flops = update_flops_per_step(trainer, entries)
         finally:
             worker.close()
+            trainer.close()
             torch.set_num_threads(threads)
     timed = times[1:] or times  # the first segment also pays the network's first calls
     rate = run.segment_steps / statistics.median(timed)  # the median: a shared machine's spikes move it less
-    return Recording(entries, steps, episodes, rate, per_policy, track, flops)
+    return Recording(
+        entries,
+        steps,
+        episodes,
+        worker_steps_per_s=rate,
+        bytes_per_policy=per_policy,
+        track=track,
+        update_flops_per_step=flops,
+    )
 
 
 def update_flops_per_step(trainer: Trainer, entries: list[dict[str, bytes]]) -> float:
@@ -173,17 +181,22 @@ def update_flops_per_step(trainer: Trainer, entries: list[dict[str, bytes]]) -> 
     Adam's few per weight are left out), ÷ the minibatch's steps × ``num_epochs``. The basis of an accelerator's
     ceiling: its peak FLOP/s ÷ this."""
     hp = trainer.hp
-    segments = [
-        decode_segment(e, trainer.run.run_id, trainer.obs_shape, trainer.n_actions, lidar=trainer.obs_spec.lidar)
-        for e in entries
-    ]
+    learner = trainer.learner
+    shape, n, lidar = learner.obs_shape, learner.n_actions, learner.obs_spec.lidar
+    segments = [decode_segment(e, trainer.run.run_id, shape, n, lidar=lidar) for e in entries]
     batch = make_batch(segments, hp.discount_factor, hp.gae_lambda)
     size = min(len(batch), hp.batch_size)
     model = copy.deepcopy(trainer.model).train()
     optimizer = make_optimizer(model, hp.lr, trainer.run.policy.l2)
-    args = (hp.clip_epsilon, hp.beta_entropy, hp.value_loss_coef, hp.value_loss_kind, hp.max_grad_norm)
+    args = StepArgs(
+        clip_eps=hp.clip_epsilon,
+        beta_entropy=hp.beta_entropy,
+        value_coef=hp.value_loss_coef,
+        loss_type=hp.value_loss_kind,
+        max_grad_norm=hp.max_grad_norm,
+    )
     with FlopCounterMode(display=False) as counter:
-        minibatch_step(model, optimizer, batch.select(torch.arange(size)), *args)
+        minibatch_step(model, optimizer, batch.select(torch.arange(size)), **args)
     return counter.get_total_flops() / size * hp.num_epochs
 
 
@@ -194,6 +207,7 @@ class _PushPlan:
 
     url: str
     run_id: str
+    _: KW_ONLY
     first: int
     count: int
     rate: float
@@ -371,26 +385,12 @@ class _Window:
                 self.sampler.start()
             return False
         elapsed = now - self.start["mono"]
-        updates = sum(r["time"] > self.start["wall"] for r in trainer.metrics)
+        updates = sum(r["time"] > self.start["wall"] for r in trainer.reporter.metrics)
         if elapsed >= self.seconds and (updates >= 2 or elapsed >= self.seconds + self.extend_s):
             self.end = _snapshot(trainer, self.bus, self.pushers)
             self.sampler.halt.set()
             return True
         return False
-
-
-class _LevelTrainer(Trainer):
-    """The real trainer, which opens and closes the level's window between two updates and stops after it: a level
-    ends at the end of an update, not in the middle of one that it would have to wait for."""
-
-    window: _Window | None = None
-
-    def ready(self) -> bool:
-        """``Trainer.ready``, unless the window has just closed: then stop instead of starting an update."""
-        if self.window is not None and self.window.check(self):
-            self.stop.set()
-            return False
-        return super().ready()
 
 
 def _snapshot(trainer: Trainer, bus: Bus, pushers: _Pushers) -> dict[str, Any]:
@@ -414,6 +414,7 @@ def _run_level(
     run: RunConfig,
     files: dict[str, bytes],
     rec: Recording,
+    *,
     workers: int,
     rate: float,
     seconds: float,
@@ -424,20 +425,31 @@ def _run_level(
     with EmbeddedRedis() as server, tempfile.TemporaryDirectory(prefix="racer-scale-") as store:
         bus = Bus(redis.Redis.from_url(server.url), run.run_id)
         plan = _PushPlan(
-            server.url, run.run_id, 0, workers, rate, run.stream_maxlen, int(run.heartbeat_ttl_s) + 1, rec.track
+            server.url,
+            run.run_id,
+            first=0,
+            count=workers,
+            rate=rate,
+            maxlen=run.stream_maxlen,
+            heartbeat_ttl_s=int(run.heartbeat_ttl_s) + 1,
+            track=rec.track,
         )
         pushers = _Pushers(rec, plan, workers, processes or workers)  # forked before the trainer's threads exist
         errors: list[BaseException] = []
         try:
             torch.set_num_threads(settings.trainer_threads)
             opts = TrainerOptions(server.url, store, run_files=files, tensorboard=False, precision=settings.precision)
-            trainer = _LevelTrainer(run, opts)
+            trainer = Trainer(run, opts)
             trainer.start()
             limit = settings.warmup_limit_s
-            window = trainer.window = _Window(bus, pushers, seconds, limit, limit)
+            # The trainer opens and closes the level's window between two updates and stops after it: a level ends
+            # at the end of an update, not in the middle of one that it would have to wait for.
+            window = _Window(bus, pushers, seconds, limit, limit)
+            trainer.stop_when = window.check
             thread = threading.Thread(target=_train, args=(trainer, errors), daemon=True)
             thread.start()
             thread.join()  # the trainer stops at the first update's end after the window closed
+            trainer.close()
             peak = bus.memory()["peak"]
         finally:
             pushers.close()
@@ -445,9 +457,11 @@ def _run_level(
             raise errors[0]
         if window.start is None or window.end is None:
             raise RuntimeError(f"the trainer stopped before the end of the {workers}-worker level")
-        rows = [r for r in trainer.metrics if window.start["wall"] < r["time"] <= window.end["wall"]]
+        rows = [r for r in trainer.reporter.metrics if window.start["wall"] < r["time"] <= window.end["wall"]]
     used_max = window.sampler.used_max
-    return _level_figures(workers, rate, run.segment_steps, window.start, window.end, rows, used_max, peak)
+    return _level_figures(
+        workers, rate, run.segment_steps, start=window.start, end=window.end, rows=rows, used_max=used_max, peak=peak
+    )
 
 
 def _train(trainer: Trainer, errors: list[BaseException]) -> None:
@@ -458,7 +472,15 @@ def _train(trainer: Trainer, errors: list[BaseException]) -> None:
 
 
 def _level_figures(
-    workers: int, rate: float, segment_steps: int, start: dict, end: dict, rows: list[dict], used_max: int, peak: int
+    workers: int,
+    rate: float,
+    segment_steps: int,
+    *,
+    start: dict,
+    end: dict,
+    rows: list[dict],
+    used_max: int,
+    peak: int,
 ) -> dict[str, Any]:
     """A level's figures from the counters at the start and end of its measured window and its updates."""
     span = end["mono"] - start["mono"]
@@ -527,7 +549,10 @@ def bench_scale(
     run = run.model_copy(update={"max_policy_lag": settings.max_policy_lag})
     rec = record_segments(run, files, settings.record_steps)
     per_worker = rate if rate is not None else rec.worker_steps_per_s / run.segment_steps
-    results = [_run_level(run, files, rec, n, per_worker, seconds, settings, processes) for n in levels]
+    results = [
+        _run_level(run, files, rec, workers=n, rate=per_worker, seconds=seconds, settings=settings, processes=processes)
+        for n in levels
+    ]
     hp = run.hyperparams
     return {
         "levels": results,

@@ -21,7 +21,7 @@ import io
 import statistics
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import KW_ONLY, asdict, dataclass, field
 from functools import partial
 from typing import Any
 
@@ -41,7 +41,7 @@ from racer.runconfig import build_run
 from trainer.evaluator import EvalSettings, evaluate, summarize
 
 
-@dataclass
+@dataclass(kw_only=True)
 class BenchTrainSettings:
     """What ``racer bench train`` runs."""
 
@@ -70,6 +70,7 @@ class LapRun:
 
     system: str
     seed: int
+    _: KW_ONLY
     lapped: bool
     time_to_lap_s: float | None
     env_steps_to_lap: int | None
@@ -94,22 +95,24 @@ def _first_lap(curve: list[dict]) -> dict | None:
     return next((point for point in curve if point["completion_rate"] >= 1.0), None)
 
 
-def _lap_run(system: str, seed: int, curve: list[dict], wall_s: float, batch_steps: int, made_s: list[float]) -> LapRun:
+def _lap_run(
+    system: str, seed: int, curve: list[dict], *, wall_s: float, batch_steps: int, made_s: list[float]
+) -> LapRun:
     """The run's figures from its evaluation curve and the times (from the start) each policy was made."""
     first = _first_lap(curve)
     gaps = [b - a for a, b in zip(made_s, made_s[1:], strict=False)]
     return LapRun(
         system,
         seed,
-        first is not None,
-        first["time_s"] if first else None,
-        first["env_steps"] if first else None,
-        wall_s,
-        curve,
-        batch_steps,
-        made_s[0] if made_s else None,
-        statistics.median(gaps) if gaps else None,
-        first["confirmed_s"] if first else None,
+        lapped=first is not None,
+        time_to_lap_s=first["time_s"] if first else None,
+        env_steps_to_lap=first["env_steps"] if first else None,
+        wall_s=wall_s,
+        curve=curve,
+        batch_steps=batch_steps,
+        first_policy_s=made_s[0] if made_s else None,
+        update_s=statistics.median(gaps) if gaps else None,
+        confirmed_s=first["confirmed_s"] if first else None,
     )
 
 
@@ -165,7 +168,9 @@ def run_racer(settings: BenchTrainSettings, seed: int) -> LapRun:
         curve = racer_curve(run_id, runs, t0)
         rows = runs.read_metrics(run_id, missing_ok=True)
     batch = int(statistics.median(int(row["batch_steps"]) for row in rows)) if rows else 0
-    return _lap_run("racer", seed, curve, wall, batch, [float(row["time"]) - t0 for row in rows])
+    return _lap_run(
+        "racer", seed, curve, wall_s=wall, batch_steps=batch, made_s=[float(row["time"]) - t0 for row in rows]
+    )
 
 
 # --- Stable-Baselines3 ------------------------------------------------------------------------------------
@@ -259,7 +264,7 @@ def run_sb3(settings: BenchTrainSettings, seed: int, n_steps: int) -> LapRun:
     finally:
         venv.close()
     made = [point["time_s"] for point in curve]
-    return _lap_run("sb3", seed, curve, time.time() - t0, n_steps * settings.workers, made)
+    return _lap_run("sb3", seed, curve, wall_s=time.time() - t0, batch_steps=n_steps * settings.workers, made_s=made)
 
 
 def _sb3_env(env_cfg: EnvConfig) -> Any:

@@ -24,13 +24,13 @@ from torch.profiler import ProfilerActivity, profile
 from common.policy import build_policy
 from racer.bench import Report
 from trainer.peak import GEMM_SIZE, Gemm, peak_precisions, update_flops
-from trainer.ppo import PPOBatch, minibatch_step
+from trainer.ppo import PPOBatch, StepArgs, minibatch_step
 from trainer.precision import fastest, precision_candidates, time_steps
 
 SETTINGS: tuple[tuple[str, bool], ...] = (("fp32", False), ("fp32", True), ("bf16", False), ("bf16", True))
 """(precision, fused Adam) pairs; the first is the trainer before this benchmark existed."""
-STEP_ARGS = (0.2, 0.01, 0.5, "huber", 0.5)
-"""``minibatch_step``'s clip_eps, beta_entropy, value_coef, loss_type, max_grad_norm (DeepRacer's)."""
+STEP_ARGS = StepArgs(clip_eps=0.2, beta_entropy=0.01, value_coef=0.5, loss_type="huber", max_grad_norm=0.5)
+"""``minibatch_step``'s loss settings (DeepRacer's)."""
 GEMM_OPS = frozenset(
     ("aten::mkldnn_convolution", "aten::convolution_backward", "aten::mm", "aten::addmm", "aten::bmm", "aten::matmul")
 )
@@ -76,13 +76,13 @@ def bench_update(
     gemms = {p: Gemm(p) for p in peak_precisions()}
     calls = max(1, GEMM_CALLS_PER_STEP * steps)
     # Warm-up first (allocator, oneDNN primitive caches), then the settings and the GEMMs interleaved run by run.
-    time_steps(cases, minibatch, STEP_ARGS, 3, 0, steps)
+    time_steps(cases, minibatch, STEP_ARGS, warmup=3, rounds=0, steps=steps)
     for gemm in gemms.values():
         gemm.gflops(2)
     runs: dict[str, list[float]] = {name: [] for name in cases}
     peak_runs: dict[str, list[float]] = {p: [] for p in gemms}
     for _ in range(repeats):
-        for name, ms in time_steps(cases, minibatch, STEP_ARGS, 0, 1, steps).items():
+        for name, ms in time_steps(cases, minibatch, STEP_ARGS, warmup=0, rounds=1, steps=steps).items():
             runs[name] += ms
         for p, gemm in gemms.items():
             peak_runs[p].append(gemm.gflops(calls))
@@ -142,15 +142,15 @@ def breakdown(precision: str, threads: int = 2, batch: int = 64, steps: int = 10
     torch.set_num_threads(threads)
     model, optimizer = _setup(precision, True, 0)
     minibatch = _minibatch(batch, 0)
-    time_steps({precision: (model, optimizer)}, minibatch, STEP_ARGS, 3, 0, steps)
+    time_steps({precision: (model, optimizer)}, minibatch, STEP_ARGS, warmup=3, rounds=0, steps=steps)
     wall = []
     for _ in range(steps):
         start = time.perf_counter()
-        minibatch_step(model, optimizer, minibatch, *STEP_ARGS)
+        minibatch_step(model, optimizer, minibatch, **STEP_ARGS)
         wall.append((time.perf_counter() - start) * 1e3)
     with profile(activities=[ProfilerActivity.CPU], record_shapes=True) as prof:
         for _ in range(steps):
-            minibatch_step(model, optimizer, minibatch, *STEP_ARGS)
+            minibatch_step(model, optimizer, minibatch, **STEP_ARGS)
     ops = [
         {"op": e.key, "shapes": [list(s) for s in e.input_shapes if s][:3], "ms": e.self_cpu_time_total / 1e3 / steps}
         for e in prof.key_averages(group_by_input_shape=True)

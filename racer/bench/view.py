@@ -131,7 +131,9 @@ def bench_view(seconds: float = 3.0, repeats: int = 5, track: str = DEFAULT_TRAC
     with tempfile.TemporaryDirectory(prefix="racer-bench-view-") as tmp, EmbeddedRedis() as server:
         store = str(Path(tmp) / "store")
         run, files = build_run(RUN_ID, track=track)
-        Trainer(run, TrainerOptions(server.url, store, run_files=files)).start()  # stores and publishes v0
+        trainer = Trainer(run, TrainerOptions(server.url, store, run_files=files))
+        trainer.start()  # stores and publishes v0
+        trainer.close()  # and is not needed again: the bench times the worker
         worker = RolloutWorker(WorkerOptions(RUN_ID, server.url, store, worker_id=WORKER_ID))
         worker.start()
         publisher = worker.rollouts.envs[0].watch

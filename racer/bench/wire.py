@@ -25,17 +25,12 @@ from rich.table import Table
 
 from common.config import EnvConfig, PolicyConfig, RandomizationConfig, RunConfig
 from common.hyperparams import Hyperparameters
-from common.policy import (
-    acting_from_bytes,
-    acting_to_bytes,
-    build_policy,
-    checkpoint_from_bytes,
-    checkpoint_to_bytes,
-)
+from common.policy import build_policy
 from common.protocol import Segment, decode_segment, encode_segment, frame_table
 from common.sensors import LidarSpec, observation_spec
+from common.weights import acting_from_bytes, acting_to_bytes, checkpoint_from_bytes, checkpoint_to_bytes
 from racer.bench import Report
-from rollout_worker.worker import Rollouts
+from rollout_worker.rollouts import Rollouts
 from trainer.peak import cpu_model
 
 _IMAGE_RANDOMIZED = {"texture": 1.0, "lighting": 1.0, "track_color": 1.0}
@@ -56,13 +51,14 @@ N_ACTIONS = 10
 def driven_segments(
     steps: int = 32,
     segments: int = 8,
+    *,
     sensors: Sequence[str] | None = None,
     stack_size: int = 1,
     seed: int = 0,
     randomization: dict | None = None,
 ) -> list[Segment]:
     """``segments`` consecutive segments of ``steps`` env steps, collected by the rollout worker's own loop
-    (``rollout_worker.worker.Rollouts``, one env) at version 0 of the default run with ``sensors``, ``stack_size``
+    (``rollout_worker.rollouts.Rollouts``, one env) at version 0 of the default run with ``sensors``, ``stack_size``
     and ``randomization`` (RandomizationConfig fields), driven by the untrained network."""
     from racer.bench.env import write_sensor_space
 
@@ -252,7 +248,9 @@ def bench_wire(segments: int = 8, steps: int = 32, repeats: int = 5, seed: int =
     runs = {}
     default: list[Segment] = []
     for name, (sensors, stack_size, randomization) in CASES.items():
-        segs = driven_segments(steps, segments, sensors, stack_size, seed, randomization)
+        segs = driven_segments(
+            steps, segments, sensors=sensors, stack_size=stack_size, seed=seed, randomization=randomization
+        )
         lidar = observation_spec(sensors or ("FRONT_FACING_CAMERA",), stack_size).lidar
         runs[name] = segment_figures(segs, lidar, repeats)
         default = default or segs

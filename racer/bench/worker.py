@@ -1,7 +1,7 @@
 """``racer bench worker``: a rollout worker's env steps per second on one core, for K envs per worker.
 
 One process on one core (``racer.bench.env.pin_to_one_core``: one PyTorch thread, single-threaded OpenCV) and no Redis:
-the worker's own collect loop (``rollout_worker.worker.Rollouts.collect``: the K envs' steps, one batched forward
+the worker's own collect loop (``rollout_worker.rollouts.Rollouts.collect``: the K envs' steps, one batched forward
 pass with sampling per step, frame stacks, sim-trace rows, the segments) on the default track, acting with a freshly
 built default policy through the worker's acting copy (ONNX Runtime, ``rollout_worker/onnx_policy.py``; ``acting``
 ``torch`` acts with the network itself). Each K's runs are interleaved with the others', run by run, so that a
@@ -30,7 +30,7 @@ from racer.bench import Report
 from racer.bench.env import env_parts_us, pin_to_one_core
 from racer.runconfig import build_run
 from rollout_worker.onnx_policy import Actor, OnnxPolicy, acting_copy
-from rollout_worker.worker import Rollouts, segment_worker_ids
+from rollout_worker.rollouts import Rollouts, segment_worker_ids
 from trainer.peak import cpu_model
 
 ACT_CALLS = 20

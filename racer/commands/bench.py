@@ -39,7 +39,19 @@ def env(
     """Env steps per second on one core (physics + camera + reward), and its parts."""
     from racer.bench import env as bench
 
-    _show(bench.command(track, steps, repeats, camera, car_calibration, sensor, race_type, obstacles), json_out)
+    _show(
+        bench.command(
+            track,
+            steps,
+            repeats,
+            camera=camera,
+            car_calibration=car_calibration,
+            sensor=sensor,
+            race_type=race_type,
+            obstacles=obstacles,
+        ),
+        json_out,
+    )
 
 
 @app.command("transport")
@@ -67,7 +79,7 @@ def loop(
     from common.deadline import parse_duration
     from racer.bench import loop as bench
 
-    seconds = parse_duration(duration)
+    seconds = parse_duration(duration, "--duration")
     counts = int_list(workers, "--workers")
     _show(bench.command(counts, seconds, track, str(hyperparams) if hyperparams else None), json_out)
 
@@ -91,10 +103,18 @@ def train(
     from common.deadline import parse_duration
     from racer.bench import train as bench
 
-    seed_numbers, limit = int_list(seeds, "--seeds"), parse_duration(time_limit)
+    seed_numbers, limit = int_list(seeds, "--seeds"), parse_duration(time_limit, "--time-limit")
     hp = str(hyperparams) if hyperparams else None
     settings = bench.BenchTrainSettings(
-        seed_numbers, limit, track, hp, workers, eval_episodes, sb3, sb3_n_steps, precision
+        seeds=seed_numbers,
+        time_limit_s=limit,
+        track=track,
+        hyperparams=hp,
+        workers=workers,
+        eval_episodes=eval_episodes,
+        sb3=sb3,
+        sb3_n_steps=sb3_n_steps,
+        precision=precision,
     )
     _show(bench.command(settings, console), json_out)
 
@@ -131,7 +151,20 @@ def race(
 
     files = bench.RaceFiles(hyperparams, reward_constants, randomization, action_space)
     seed_numbers = int_list(seeds, "--seeds")
-    _show(bench.command(seed_numbers, minutes, track, car, workers, eval_starts, files, png, console), json_out)
+    _show(
+        bench.command(
+            seed_numbers,
+            minutes,
+            track,
+            car=car,
+            workers=workers,
+            eval_starts=eval_starts,
+            files=files,
+            png=png,
+            progress=console,
+        ),
+        json_out,
+    )
 
 
 @app.command("oa")
@@ -153,7 +186,19 @@ def oa(
     from racer.bench import oa as bench
 
     seed_numbers = int_list(seeds, "--seeds")
-    _show(bench.command(race_type, seed_numbers, minutes, track, workers, eval_trials, png, console), json_out)
+    _show(
+        bench.command(
+            race_type,
+            seed_numbers,
+            minutes,
+            track=track,
+            workers=workers,
+            eval_trials=eval_trials,
+            png=png,
+            progress=console,
+        ),
+        json_out,
+    )
 
 
 @app.command("update")
@@ -202,7 +247,7 @@ def soak(
     from common.deadline import parse_duration
     from racer.bench import soak as bench
 
-    _show(bench.command(parse_duration(duration), workers, track, stream_maxlen), json_out)
+    _show(bench.command(parse_duration(duration, "--duration"), workers, track, stream_maxlen), json_out)
 
 
 @app.command("scale")
@@ -275,6 +320,31 @@ def calibrate(
     from racer.bench import calibrate as bench
 
     _show(bench.command(logs or [], repeats=repeats, threads=threads, max_windows=max_windows), json_out)
+
+
+@app.command("transfer")
+def transfer(
+    rows: Annotated[
+        str | None, typer.Option(help="Comma-separated rows of Table II (default: all 17; see docs/transfer.md).")
+    ] = None,
+    minutes: Annotated[float, typer.Option(min=0.5, help="Training minutes per row.")] = 20.0,
+    out: Annotated[Path, typer.Option(help="Folder of the finished rows: a rerun resumes from it.")] = Path("transfer"),
+    tracks: Annotated[
+        str | None, typer.Option(help="A=TRACK,B=TRACK,C=TRACK,D=TRACK over the defaults (A is driven, never trained).")
+    ] = None,
+    car: Annotated[
+        str | None, typer.Option(help="The 'real' car: a preset or a car.json (default: deepracer-gazebo).")
+    ] = None,
+    fresh: Annotated[bool, typer.Option("--fresh", help="Train every row again, ignoring finished ones.")] = False,
+    png: Annotated[Path | None, typer.Option("--png", help="Write the figure: racer's totals and the paper's.")] = None,
+    json_out: JsonOut = None,
+) -> None:
+    """The DeepRacer paper's Table II in simulation: each row trained, its checkpoint chosen by robust evaluation,
+    driven 6 times in each of the five held-out conditions on a track it never saw, beside the paper's totals."""
+    from racer.bench import transfer as bench
+
+    names = [n.strip() for n in rows.split(",") if n.strip()] if rows else None
+    _show(bench.command(names, minutes, out, tracks=tracks, car=car, fresh=fresh, png=png), json_out)
 
 
 def _show(report: Report, json_out: str | None) -> None:

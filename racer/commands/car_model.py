@@ -7,10 +7,10 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
 from racer.commands.options import console, json_option, print_table, write_json
+from racer.console import new_console
 
 
 def calibrate(
@@ -60,8 +60,19 @@ def calibrate(
 
         raise OptionError("racer calibrate: give the logs to fit (or --plan for what to drive)")
     # Progress goes to stderr, so that --json - leaves standard output to the JSON alone.
-    progress = Console(stderr=True, highlight=False).print
-    report = run_calibrate(logs, apply, out, png, effects, track, max_windows, progress, timing, base=car)
+    progress = new_console(stderr=True, highlight=False).print
+    report = run_calibrate(
+        logs,
+        apply=apply,
+        out=out,
+        png=png,
+        effects=effects,
+        track=track,
+        max_windows=max_windows,
+        say=progress,
+        timing=timing,
+        base=car,
+    )
     if json_out != "-":
         _show_calibration(report)
     write_json(report, json_out)

@@ -8,10 +8,10 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 
 from common.errors import OptionError
-from racer.commands.options import Endpoint, Store, console, json_option, write_json
+from racer.commands.options import Endpoint, ReadStore, Store, console, json_option, write_json
+from racer.console import new_console
 
 FORMATS = ("onnx", "deepracer-car", "deepracer-sim")
 """``racer export --format`` values: racer's ONNX model, DeepRacer's car archive, DeepRacer's simulator folder."""
@@ -28,7 +28,7 @@ def export(
             "deepracer-sim, a new folder.",
         ),
     ],
-    store: Store = ".",
+    store: ReadStore = ".",
     s3_endpoint: Endpoint = None,
     checkpoint: Annotated[str, typer.Option(help="best, latest or a version number.")] = "best",
     fmt: Annotated[
@@ -73,7 +73,7 @@ def export(
     else:
         from deploy.deepracer_format import export_sim
 
-        result = export_sim(runs, run_id, checkpoint, out, upload, s3_endpoint)
+        result = export_sim(runs, run_id, checkpoint, out, upload=upload, s3_endpoint=s3_endpoint)
         where = f" and {upload}" if upload else ""
         console.print(f"exported run {run_id} as a DeepRacer model folder to {out}{where}")
     write_json(result, json_out)
@@ -93,9 +93,10 @@ def import_model(
     'racer\\[deepracer]'."""
     from deploy.importer import import_model as read_model
     from model_store import RunStore, open_store
+    from racer.runconfig import build_run
 
     runs = RunStore(open_store(store, s3_endpoint))
-    result = read_model(runs, source, run_id, s3_endpoint)
+    result = read_model(runs, source, run_id, s3_endpoint, build_run=build_run)
     for note in result["notes"]:
         console.print(f"note: {note}", highlight=False)
     weights, value = result["weights"], result["value_head"]
@@ -134,7 +135,7 @@ def car(
 
     calibration = load_vehicle_calibration(vehicle) if vehicle else VehicleCalibration()
     result = drive(Policy(model), source, calibration, CsvSink(out), max_frames, right_source=right_source)
-    Console(stderr=True).print(
+    new_console(stderr=True).print(
         f"{result.frames} frames at {result.fps:.1f} frames/s (inference {result.infer_ms_median:.2f} ms, "
         f"loop {result.loop_ms_median:.2f} ms, medians)"
     )

@@ -8,14 +8,14 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from racer.commands.options import Endpoint, Store, console, json_option, print_table, write_json
+from racer.commands.options import Endpoint, ReadStore, console, json_option, print_table, write_json
 
 app = typer.Typer(no_args_is_help=True, help="Runs and checkpoints in a store.")
 
 
 @app.command("ls")
 def ls(
-    store: Store = ".",
+    store: ReadStore = ".",
     s3_endpoint: Endpoint = None,
     run_id: Annotated[str | None, typer.Option("--run-id", help="Only this run.")] = None,
     wide: Annotated[bool, typer.Option("--wide", help="All columns, the run id on every row.")] = False,
@@ -33,7 +33,7 @@ def ls(
 
 @app.command("prune")
 def prune(
-    store: Store = ".",
+    store: ReadStore = ".",
     s3_endpoint: Endpoint = None,
     run_id: Annotated[list[str] | None, typer.Option("--run-id", help="Only this run (repeatable).")] = None,
     keep: Annotated[int, typer.Option(min=0, help="Newest checkpoints to keep beside latest and best.")] = 1,

@@ -3,14 +3,23 @@ worker`` and ``racer evaluator``. ``racer train`` starts the same commands (``ra
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
+from common.bus import TRAINER_BEAT_TTL_S
 from common.config import PRECISION_HELP
-from common.defaults import DEFAULT_TRACK
+from common.defaults import (
+    DEFAULT_EVAL_EPISODES,
+    DEFAULT_EVAL_NICE,
+    DEFAULT_TRACK,
+    DEFAULT_TRAINER_THREADS,
+    EVAL_ACTION_NOISE,
+)
 from racer.commands.options import (
+    DEFAULT_OUTAGE,
     Endpoint,
     EnvsPerWorker,
     Outage,
@@ -48,11 +57,13 @@ def trainer(
     race: Annotated[Path | None, typer.Option("--race", envvar="RACER_RACE", help="JSON of race settings.")] = None,
     resume: Annotated[bool, typer.Option("--resume", envvar="RACER_RESUME")] = False,
     time_limit: Annotated[str | None, typer.Option("--time-limit", envvar="RACER_TIME_LIMIT")] = None,
-    threads: Annotated[int, typer.Option(min=1, envvar="RACER_TRAINER_THREADS", help="PyTorch threads.")] = 1,
+    threads: Annotated[
+        int, typer.Option(min=1, envvar="RACER_TRAINER_THREADS", help="PyTorch threads.")
+    ] = DEFAULT_TRAINER_THREADS,
     precision: Annotated[str, typer.Option(envvar="RACER_PRECISION", help=PRECISION_HELP)] = "auto",
     worker_config: WorkerConfig = None,
     device: Annotated[str, device_option("RACER_DEVICE")] = "auto",
-    outage_timeout: Outage = "10m",
+    outage_timeout: Outage = DEFAULT_OUTAGE,
     verbose: Verbose = False,
 ) -> None:
     """Run the PPO trainer role alone (for docker compose and multi-machine runs)."""
@@ -96,11 +107,11 @@ def trainer(
     trainer_opts = TrainerOptions(
         str(opts.redis_url),
         opts.store,
-        opts.s3_endpoint,
-        resume,
-        opts.deadline,
-        opts.trainer_threads,
-        run_files,
+        s3_endpoint=opts.s3_endpoint,
+        resume=resume,
+        deadline=opts.deadline,
+        torch_threads=opts.trainer_threads,
+        run_files=run_files,
         outage_s=parse_duration(outage_timeout),
         precision=opts.precision,
         device=opts.device,
@@ -116,7 +127,7 @@ def worker(
     index: Annotated[int | None, typer.Option(envvar="RACER_WORKER_INDEX", help="Worker index (seed, track).")] = None,
     worker_id: Annotated[str, typer.Option("--worker-id", envvar="RACER_WORKER_ID")] = "",
     envs_per_worker: EnvsPerWorker = 1,
-    outage_timeout: Outage = "10m",
+    outage_timeout: Outage = DEFAULT_OUTAGE,
     simtrace_log: Annotated[
         bool,
         typer.Option(
@@ -139,9 +150,9 @@ def worker(
         run_id,
         redis_url,
         store,
-        s3_endpoint,
-        index,
-        worker_id,
+        s3_endpoint=s3_endpoint,
+        worker_index=index,
+        worker_id=worker_id,
         outage_s=parse_duration(outage_timeout),
         envs_per_worker=envs_per_worker,
     )
@@ -154,24 +165,35 @@ def evaluator(
     store: Store = ".",
     s3_endpoint: Endpoint = None,
     every: Annotated[int, typer.Option(min=1, envvar="RACER_EVAL_EVERY", help="Evaluate every N-th version.")] = 1,
-    episodes: Annotated[int, typer.Option(min=1, envvar="RACER_EVAL_EPISODES", help="Starts per direction.")] = 6,
-    action_noise: Annotated[float, typer.Option(min=0, max=1, help="Action noise fraction.")] = 0.1,
+    episodes: Annotated[
+        int, typer.Option(min=1, envvar="RACER_EVAL_EPISODES", help="Starts per direction.")
+    ] = DEFAULT_EVAL_EPISODES,
+    action_noise: Annotated[float, typer.Option(min=0, max=1, help="Action noise fraction.")] = EVAL_ACTION_NOISE,
     track: Annotated[list[str] | None, typer.Option(help="Evaluate on these tracks (default: the run's).")] = None,
     forward_only: Annotated[
         bool, typer.Option("--forward-only", help="Drive the track's own direction only, as a DeepRacer race.")
     ] = False,
     nice: Annotated[
         int, typer.Option(min=0, max=19, envvar="RACER_EVAL_NICE", help="Lower CPU priority (Unix nice increment).")
-    ] = 0,
+    ] = DEFAULT_EVAL_NICE,
     device: Annotated[str, device_option("RACER_DEVICE")] = "auto",
-    outage_timeout: Outage = "10m",
+    outage_timeout: Outage = DEFAULT_OUTAGE,
     verbose: Verbose = False,
+    condition: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--condition",
+            help="Also drive each checkpoint in these held-out conditions (as racer eval --condition; "
+            "docs/transfer.md): its evaluation record's 'conditions'. The best pointer stays the run's own world's.",
+        ),
+    ] = None,
 ) -> None:
     """Run the evaluator role: robust evaluation of each new checkpoint, and the best pointer."""
     import os
 
     if nice:
         os.nice(nice)  # first, so that even importing torch yields the CPU to the trainer and the workers
+    from common.conditions import load_conditions
     from common.deadline import parse_duration
     from racer.lifecycle import setup_logging, stop_event_on_signals
     from trainer.device import resolve_device
@@ -179,11 +201,20 @@ def evaluator(
 
     setup_logging(verbose)
     resolve_device(device)  # a bad value fails before Redis is reached
+    conditions = load_conditions(condition or [])  # a bad name or file, too
     settings = EvalSettings(
         episodes=episodes, action_noise=action_noise, tracks=track or [], both_directions=not forward_only
     )
     opts = EvaluatorOptions(
-        run_id, redis_url, store, s3_endpoint, every, settings, outage_s=parse_duration(outage_timeout), device=device
+        run_id,
+        redis_url,
+        store,
+        s3_endpoint=s3_endpoint,
+        every=every,
+        settings=settings,
+        outage_s=parse_duration(outage_timeout),
+        device=device,
+        conditions=conditions,
     )
     run_evaluator(opts, stop_event_on_signals())
 
@@ -207,33 +238,73 @@ def status(
     json_out: Annotated[str | None, json_option("the run's state")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing; only the exit code.")] = False,
 ) -> None:
-    """The state of a run from its Redis: trainer, live workers, newest policy, last evaluation. Exits 1 when no
-    trainer is running (for health checks: docker compose uses it). Without --redis it finds a racer train running
-    on this machine by --run-id, or the newest one, from the record it keeps in the store's run folder."""
+    """The state of a run from its Redis: the trainer (starting, collecting, updating, or stopped and why), live
+    workers, newest policy, last evaluation, and the Redis server's version. Exits 0 while the run's trainer is
+    alive (its heartbeat, refreshed by a thread of its own, is younger than ``TRAINER_BEAT_TTL_S``, even in the
+    middle of a long PPO update), else 1: docker compose's health check uses it. Without --redis it finds a racer
+    train running on this machine by --run-id, or the newest one, from the record it keeps in the store's run
+    folder."""
     from common.bus import Bus
     from racer.redis_record import locate_run
 
     run_id, redis_url = locate_run(store, run_id, redis_url)
     state = Bus.connect(redis_url, run_id).snapshot()
-    trainer = state["trainer"]
     if not quiet and json_out != "-":
-        console.print(_status_lines(state), highlight=False, soft_wrap=True)
+        console.print(status_lines(state, time.time()), highlight=False, soft_wrap=True)
     if not quiet:
         write_json(state, json_out)
-    if trainer is None:
+    if not trainer_alive(state):
         raise typer.Exit(1)
 
 
-def _status_lines(state: dict) -> str:
-    trainer, policy, last = state["trainer"], state["policy"], state["last_evaluation"]
-    lines = [f"run {state['run_id']}"]
-    if trainer is None:
-        lines.append("trainer: not running (no status in the last 30 s)")
-    else:
-        lines.append(
-            f"trainer: iteration {trainer.get('iteration')}, {trainer.get('env_steps', 0):,} env steps, "
-            f"{trainer.get('steps_per_s', 0.0):.0f} steps/s" + (" (PPO update running)" if state["training"] else "")
+def trainer_alive(state: dict) -> bool:
+    """The run's trainer is running: its heartbeat is live, or (a trainer without one) its status is fresh."""
+    beat = state["trainer_beat"]
+    return (beat is not None and beat["phase"] != "stopping") or (beat is None and state["trainer"] is not None)
+
+
+_END_REASONS = {
+    "time_limit": "its time limit was reached",
+    "max_updates": "term_cond_max_episodes policy updates done",
+    "stopped": "it was asked to stop",
+}
+
+
+def _trainer_line(state: dict, now: float) -> str:
+    """What the trainer is doing, from its heartbeat, status and end record (``status``)."""
+    trainer, beat, end = state["trainer"], state["trainer_beat"], state["trainer_end"]
+    progress = ""
+    if trainer is not None:
+        progress = (
+            f"iteration {trainer.get('iteration')}, {trainer.get('env_steps', 0):,} env steps, "
+            f"{trainer.get('steps_per_s', 0.0):.0f} steps/s"
         )
+    if beat is not None:
+        for_s = max(0.0, now - beat["since"])
+        doing = {
+            "starting": f"starting (for {for_s:.0f} s: loading the run and publishing its first policy)",
+            "collecting": "collecting segments",
+            "updating": f"updating policy v{beat['policy_version']} (PPO update running for {for_s:.0f} s)",
+            "stopping": "stopping",
+        }[beat["phase"]]
+        return f"trainer: {doing}" + (f"; {progress}" if progress else "")
+    if trainer is not None:
+        return f"trainer: {progress}"
+    if end is not None:
+        ago = max(0.0, now - end["time"])
+        return (
+            f"trainer: stopped {ago:.0f} s ago ({_END_REASONS[end['reason']]}) at policy v{end['policy_version']}, "
+            f"{end['env_steps']:,} env steps; its checkpoints: racer models ls --run-id {state['run_id']}"
+        )
+    if state["policy"] is None and not state["workers"] and state["last_evaluation"] is None:
+        return f"trainer: none: this Redis holds nothing of run {state['run_id']} (check --run-id)"
+    return f"trainer: not running (no heartbeat in the last {TRAINER_BEAT_TTL_S} s)"
+
+
+def status_lines(state: dict, now: float) -> str:
+    """``racer status``'s text for a ``Bus.snapshot`` taken at ``now`` (epoch seconds)."""
+    policy, last = state["policy"], state["last_evaluation"]
+    lines = [f"run {state['run_id']} (Redis {state['redis_version']})", _trainer_line(state, now)]
     lines.append(f"policy: v{policy['version']}" if policy else "policy: none published")
     lines.append(f"workers: {len(state['workers'])} alive")
     for w in state["workers"]:

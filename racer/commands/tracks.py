@@ -61,7 +61,8 @@ def pull(
         typer.Option(
             "--from",
             envvar="RACER_TRACKS_FROM",
-            help="Base URL (http, https, file) or local folder to pull from.",
+            help="Base URL (http, https, file) or local folder to pull from; offline, a folder of DeepRacer .npy "
+            "routes (a simapp or DRfC checkout's bundle/routes).",
             show_default="the community simapp's bundle/routes at the commit racer follows",
         ),
     ] = None,

@@ -6,12 +6,12 @@ from typing import Annotated
 
 import typer
 
-from racer.commands.options import Endpoint, RunId, Store, console
+from racer.commands.options import Endpoint, ReadStore, RunId, console
 
 
 def view(
     run_id: RunId,
-    store: Store = ".",
+    store: ReadStore = ".",
     s3_endpoint: Endpoint = None,
     redis_url: Annotated[
         str | None,
@@ -30,7 +30,7 @@ def view(
     """Serve a web page that shows the run: cars on the track, a worker's camera, training charts, checkpoints."""
     from racer.view.server import ViewOptions, ViewServer
 
-    server = ViewServer(ViewOptions(run_id, store, s3_endpoint, redis_url, host, port))
+    server = ViewServer(ViewOptions(run_id, store, s3_endpoint=s3_endpoint, redis_url=redis_url, host=host, port=port))
     console.print(f"run {run_id}: {server.note}", highlight=False, soft_wrap=True)
     if server.token:
         console.print("listening beyond loopback: the page needs the token in this URL", highlight=False)

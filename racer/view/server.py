@@ -12,7 +12,7 @@ import logging
 import secrets
 import socket
 import threading
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 
 import redis
 import uvicorn
@@ -37,10 +37,11 @@ SHUTDOWN_S = 2
 
 @dataclass
 class ViewOptions:
-    """What ``racer view`` serves, and where."""
+    """What ``racer view`` serves, and where (keyword-only after the store)."""
 
     run_id: str
     store: str = "."
+    _: KW_ONLY
     s3_endpoint: str | None = None
     redis_url: str | None = None
     """The run's Redis; None: the one a running ``racer train`` of it recorded (``racer/redis_record.py``) if it

@@ -45,7 +45,7 @@ from scipy.optimize import least_squares, minimize
 
 from common.car_calibration import CANDIDATE_EFFECTS, EFFECTS, CarCalibration, CarEffect
 from sim.calibration.logs import LogError, Trajectory
-from sim.calibration.plan import identifiability, pairs_confounded
+from sim.calibration.plan import command_steps, identifiability, pairs_confounded
 from sim.calibration.replay import (
     SPEED_ROWS,
     Replayer,
@@ -250,6 +250,8 @@ def fit_effects(
     """
     start = start or CarCalibration()
     free = effects if free is None else free
+    if not free:  # nothing to fit (e.g. --effect names none of the base's): the start as it is
+        return Fit(start, objective.cost(start), 1)
     fixed = start.model_copy(update={"effects": [e for e in start.effects if e.name not in free]})
     keys = _param_keys(free)
     specs = [EFFECTS[e].params[p] for e, p in keys]
@@ -289,7 +291,7 @@ def fit_effects(
         sol = least_squares(
             lambda z: vector(z * scale),
             z0,
-            jac=lambda z: _jacobian(vector, z * scale, vector(z * scale), 0.3 * scale, lo, hi) * scale,
+            jac=lambda z: _jacobian(vector, z * scale, vector(z * scale), 0.3 * scale, lo=lo, hi=hi) * scale,
             bounds=(lo / scale, hi / scale),
             xtol=1e-3,
             ftol=1e-4,
@@ -299,7 +301,7 @@ def fit_effects(
     x = np.clip(z * scale, lo, hi)
     r = vector(x)
     # For the standard errors: least_squares's last Jacobian is the one at its solution; else a fresh one.
-    jac_x = jac_z / scale if jac_z is not None else _jacobian(vector, x, r, 0.3 * scale, lo, hi)
+    jac_x = jac_z / scale if jac_z is not None else _jacobian(vector, x, r, 0.3 * scale, lo=lo, hi=hi)
     err = _cluster_stderr(jac_x, r, objective.clusters())
     return Fit(calibration(x, err), float(np.sum(r**2)), evals)
 
@@ -313,7 +315,7 @@ def _trust_region(
     failed steps in a row or to a step too small to take, and the fit ends only on a small step or a small gain
     with a fresh Jacobian (a stale one can stall far from the minimum). Returns the parameters and residual."""
     r = f(z)
-    jac, fresh = _jacobian(f, z, r, np.full(len(z), 0.3), lo, hi), True
+    jac, fresh = _jacobian(f, z, r, np.full(len(z), 0.3), lo=lo, hi=hi), True
     cost, lam, fails = float(r @ r), 1e-2, 0
     for _ in range(max_iter):
         a, g = jac.T @ jac, jac.T @ r
@@ -321,7 +323,7 @@ def _trust_region(
         if np.linalg.norm(step) < STEP_TOL or fails >= 2:
             if fresh:
                 break
-            jac, fresh, fails = _jacobian(f, z, r, np.full(len(z), 0.3), lo, hi), True, 0
+            jac, fresh, fails = _jacobian(f, z, r, np.full(len(z), 0.3), lo=lo, hi=hi), True, 0
             continue
         r_trial = f(z + step)
         jac = jac + np.outer(r_trial - r - jac @ step, step) / float(step @ step)  # Broyden's rank-one update
@@ -337,7 +339,7 @@ def _trust_region(
     return z, r
 
 
-def _jacobian(f: Callable, x: np.ndarray, fx: np.ndarray, step: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+def _jacobian(f: Callable, x: np.ndarray, fx: np.ndarray, step: np.ndarray, *, lo: np.ndarray, hi: np.ndarray):
     """Forward-difference Jacobian, stepping towards the inside of the bounds."""
     cols = []
     for i in range(len(x)):
@@ -366,13 +368,16 @@ SAME_KIND: dict[str, tuple[float, float]] = {
     "steering_offset": (-0.5, 0.5),
     "steering_delay": (0.0, 0.05),
     "steering_lag": (0.0, 0.05),
+    "steering_rate": (0.0, 0.1),
     "speed_delay": (0.0, 0.05),
     "speed_lag": (0.0, 0.05),
+    "speed_rate": (0.0, 0.1),
     "steering_saturation": (25.0, 30.0),
     "understeer": (0.0, 0.05),
 }
 """What a car of DeepRacer's kind has by construction, as each effect's first parameter: a steering ratio and a
-speed scale within 10 %, a servo or motor that responds within 50 ms (less than a 15 Hz row), the mechanical
+speed scale within 10 %, a servo or motor that responds within 50 ms (less than a 15 Hz row) and turns 60° in
+0.1 s or less (a hobby servo's datasheet speed) or accelerates at 10 m/s² or more, the mechanical
 steering stop near 30°. Without a given base car (``--car``), a fitted value inside its range is reported as part
 of the car (``"base"``), one outside as an undeclared effect (``"effects"``). One log cannot tell the car's own
 small lag from an undeclared one of the same size: a base fitted on a clean log and given with ``--car`` can,
@@ -394,10 +399,12 @@ PARTNERS = {
     "steering_lag": "steering_delay",
     "speed_delay": "speed_lag",
     "speed_lag": "speed_delay",
+    "steering_rate": "steering_lag",
+    "speed_rate": "speed_lag",
     "understeer": "steering_gain",
 }
 """Each effect's nearest alternative: a dead time and a lag look alike at 15 Hz; a gain and understeer alike at
-one speed."""
+one speed; a rate limit alike a lag when the steps are all of one size."""
 
 
 @dataclass
@@ -535,7 +542,7 @@ def gain_guess(windows: Windows) -> dict[str, float]:
     """Where the base car's steering and speed gains start: the logged car's command-response gain (the sum of
     its response weights, ``sim.calibration.response``) over racer's car's, driven open loop by the same
     commands, on the episodes of ``windows``. A trust-region fit started at racer's own gains can stall on the
-    way to a car that steers 40 % less (seen: 0.81 for 0.6 in 12 iterations); from here it starts near. A slow
+    way to a car that steers 40 % less (it stopped at 0.81 for a true 0.6); from here it starts near. A slow
     car's response outlasts the 14 rows the weights span, so the guess is low for one (0.46 for a car with a
     0.5 s steering lag): :func:`select_effects` starts from it only where it costs less than racer's gains."""
     trajectories = [windows.trajectories[t] for t in np.unique(windows.traj)]
@@ -736,6 +743,7 @@ def _reduction(before: float, after: float) -> float:
 def calibrate(
     trajectories: list[Trajectory],
     candidates: list[str] | None = None,
+    *,
     max_windows: int = MAX_FIT_WINDOWS,
     progress: Callable[[str], None] = log.info,
     timing: str = "auto",
@@ -770,14 +778,14 @@ def calibrate(
     effect_names = [e.name for e in cal.effects if e.name not in base_names]
     result = score(cal, parts["report"], replayer, timing)
     clock.lap("report")
-    mean_v2 = float(np.mean(np.square(sel_obj.meas["speed"])))
+    logged = {"mean_v2": float(np.mean(np.square(sel_obj.meas["speed"]))), "steps": command_steps(trajectories)}
     ambiguous = _ambiguous(sel, pairs_confounded(trajectories), effect_names)
     base_cal = cal.model_copy(update={"effects": [e for e in cal.effects if e.name in base_names]})
     base_res = residuals(replayer.replay(result.windows, base_cal), result.replays["measured"])
     result.report.update(
         {
-            "base": describe(cal, base_names, mean_v2=mean_v2),
-            "effects": describe(cal, effect_names, ambiguous=ambiguous, mean_v2=mean_v2),
+            "base": describe(cal, base_names, **logged),
+            "effects": describe(cal, effect_names, ambiguous=ambiguous, **logged),
             "error_base": error_summary(base_res),
             "identifiability": identifiability(trajectories),
             "alternatives": [
@@ -824,10 +832,11 @@ def _ambiguous(sel: Selection, confounded: list[list[str]], effects: list[str]) 
     episodes about as well (``Selection.alternatives``), and pairs the logs lack the manoeuvres to separate
     (``sim.calibration.plan.pairs_confounded``: e.g. understeer and the steering gain at one speed)."""
     out: dict[str, set[str]] = {n: {alt["with"]} for n, alt in sel.alternatives.items() if n in effects}
-    for name in effects:  # a dead time and a lag chosen together: a split of one delay that 15 Hz barely sees
+    for name in effects:  # a dead time, a lag or a rate limit chosen with its partner: a split of one delay
         partner = PARTNERS.get(name)
-        if partner in effects and name.endswith(("_delay", "_lag")):
+        if partner in effects and name.endswith(("_delay", "_lag", "_rate")):
             out.setdefault(name, set()).add(partner)
+            out.setdefault(partner, set()).add(name)
     for a, b in confounded:
         for name, other in ((a, b), (b, a)):
             if name in effects and sel.calibration.has(name):

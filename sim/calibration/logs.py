@@ -58,7 +58,7 @@ import csv
 import logging
 import re
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -112,6 +112,7 @@ class Trajectory:
     """The episode number in that file (0 where the file has none)."""
     t: np.ndarray
     """Sample times, s, strictly increasing."""
+    _: KW_ONLY
     steer_cmd_deg: np.ndarray
     """Commanded steering angle, degrees, + = left."""
     speed_cmd_mps: np.ndarray
@@ -164,6 +165,7 @@ class _Table:
 
     path: Path
     kind: str  # "simtrace" or "plain"
+    _: KW_ONLY
     columns: dict[str, int]  # column name -> field index
     rows: list[list[str]]
     lines: list[int]  # 1-based line number of each row in the file
@@ -267,7 +269,7 @@ def _parse_robomaker(path: Path, lines: list[str]) -> _Table:
                 f"{path}, line {n}: SIM_TRACE_LOG has {len(row)} fields, expected {' or '.join(map(str, widths))}"
             )
     columns = {name: i for i, name in enumerate(SIMTRACE_COLUMNS)}
-    return _Table(path, "simtrace", columns, rows, numbers, {})
+    return _Table(path, "simtrace", columns=columns, rows=rows, lines=numbers, meta={})
 
 
 def _parse_csv(path: Path, lines: list[str]) -> _Table:
@@ -294,7 +296,7 @@ def _parse_csv(path: Path, lines: list[str]) -> _Table:
             raise LogError(f"{path}, line {n}: {len(row)} fields, the header has {len(header)}")
     if not rows:
         raise LogError(f"{path}: header but no data rows")
-    return _Table(path, kind, columns, rows, numbers, meta)
+    return _Table(path, kind, columns=columns, rows=rows, lines=numbers, meta=meta)
 
 
 def _detect_kind(path: Path, header: list[str]) -> str:

@@ -24,6 +24,7 @@ import numpy as np
 
 from common.car_calibration import CANDIDATE_EFFECTS
 from sim.calibration.logs import PLAIN_COLUMNS, Trajectory
+from sim.calibration.values import DEFAULT_STEPS
 from sim.physics import WHEELBASE_M
 
 # ------------------------------------------------------------------------------------------------ thresholds
@@ -63,6 +64,13 @@ SATURATION_PROBE_DEG = 20.0
 MIN_STEER_STEP_DEG = 10.0
 """A steering step changes the command by at least this: at 1 m/s the yaw rate then changes by ≥ 1 rad/s,
 so its onset (dead time) and rise (lag) stand out of the noise."""
+LARGE_STEER_STEP_DEG = 30.0
+"""A steering step this large shows a servo's slew rate: at a hobby servo's 0.15 s/60° it takes 75 ms, over a
+15 Hz row, and a slew's rise time grows with the step where a lag's does not: steps of both sizes (this and
+under it) tell the two apart."""
+LARGE_SPEED_STEP_MPS = 1.5
+"""A speed step this large shows a drive's acceleration limit the way a large steering step shows a slew rate:
+at 5 m/s² it takes 0.3 s, and a lag's rise time does not grow with the step."""
 MIN_SPEED_STEP_MPS = 0.5
 """A speed step changes the command by at least this: a third of a typical 1.5 m/s, comparable with the
 per-row speed noise (±30 %), which :data:`MIN_STEPS` steps average out."""
@@ -124,11 +132,12 @@ MANOEUVRES: tuple[Manoeuvre, ...] = (
     Manoeuvre(
         "steering steps",
         "at 1.0 m/s, switch the steering between +10° and +25° every 1.0 s (steps of 15°; the car stays within "
-        "~2 m), 20 steps, then between −10° and −25°, 20 steps; on a track, 0° ↔ ±15° every 1.0 s on "
-        "the straights does as well",
-        ("steering_delay", "steering_lag"),
+        "~2 m), 20 steps, then between −10° and −25°, 20 steps, then between −20° and +20° (steps of 40°), 20 "
+        "steps; on a track, 0° ↔ ±15° and ±20° ↔ ∓20° every 1.0 s on the straights do as well",
+        ("steering_delay", "steering_lag", "steering_rate"),
         "after a step the turn rate starts changing only after the dead time and then approaches its new value "
-        "with the lag's time constant, so many clean steps, each held until settled, separate the two",
+        "with the lag's time constant, so many clean steps, each held until settled, separate the two; a "
+        "servo's slew limit makes large steps take longer than small ones, which a lag does not",
     ),
     Manoeuvre(
         "straight runs at several speeds",
@@ -141,10 +150,12 @@ MANOEUVRES: tuple[Manoeuvre, ...] = (
     Manoeuvre(
         "speed steps",
         "on a straight, or steering +10° (a circle ~1.9 m across) in a small space, switch the speed between 0.5 "
-        "and 1.5 m/s every 1.5 s, at least 20 steps",
-        ("speed_delay", "speed_lag"),
+        "and 1.5 m/s every 1.5 s, at least 20 steps, then between 0.5 and 2.5 m/s (on a straight of ≥ 6 m), "
+        "at least 20 steps",
+        ("speed_delay", "speed_lag", "speed_rate"),
         "the measured speed starts changing after the dead time and then approaches the new speed with the "
-        "lag's time constant, and many steps average out the noisy per-row speed",
+        "lag's time constant, and many steps average out the noisy per-row speed; a drive's acceleration "
+        "limit makes large steps take longer than small ones, which a lag does not",
     ),
     Manoeuvre(
         "high-speed circles",
@@ -216,7 +227,9 @@ class _Excitation:
 
     holds: list[_Hold]
     steering_steps: int
+    large_steering_steps: int
     speed_steps: int
+    large_speed_steps: int
     high_lateral_rows: int
     max_lateral_mps2: float
     row_period_s: float
@@ -257,17 +270,32 @@ def _holds(tr: Trajectory) -> list[_Hold]:
     return out
 
 
-def _steps(tr: Trajectory, command: np.ndarray, tol: float, min_step: float) -> int:
-    """Clean steps of one command: a change of at least ``min_step`` held :data:`STEP_HOLD_S` with the car moving."""
-    count = 0
+def _step_sizes(tr: Trajectory, command: np.ndarray, tol: float, min_step: float) -> list[float]:
+    """Sizes of the clean steps of one command: a change of at least ``min_step`` held :data:`STEP_HOLD_S` with
+    the car moving."""
+    sizes = []
     for start, stop in _runs([(command, tol)])[1:]:  # the first run has no step into it
+        size = abs(float(command[start] - command[start - 1]))
         if (
-            abs(command[start] - command[start - 1]) >= min_step
+            size >= min_step
             and _shown_s(tr, start, stop) >= STEP_HOLD_S
             and _settled_speed(tr, start, stop) >= MIN_MOVING_MPS
         ):
-            count += 1
-    return count
+            sizes.append(size)
+    return sizes
+
+
+def command_steps(trajectories: list[Trajectory]) -> dict[str, float]:
+    """The logs' median change of each command between rows where it changes (``{"steering": degrees, "speed":
+    m/s}``, ``sim.calibration.values.DEFAULT_STEPS`` where it never does): the step at which the report's total
+    delay counts a rate limit."""
+    out = dict(DEFAULT_STEPS)
+    for channel, attr, tol in (("steering", "steer_cmd_deg", STEER_TOL_DEG), ("speed", "speed_cmd_mps", SPEED_TOL_MPS)):
+        changes = np.concatenate([np.abs(np.diff(getattr(tr, attr))) for tr in trajectories] or [np.zeros(0)])
+        changes = changes[changes > tol]
+        if changes.size:
+            out[channel] = round(float(np.median(changes)), 3)
+    return out
 
 
 def _lateral_mps2(tr: Trajectory) -> np.ndarray:
@@ -279,19 +307,21 @@ def _lateral_mps2(tr: Trajectory) -> np.ndarray:
 
 def _excitation(trajectories: list[Trajectory]) -> _Excitation:
     """Measure everything the effects need from the logs' commands and measured speeds."""
-    holds, steer_steps, speed_steps, lateral = [], 0, 0, []
+    holds, steer_steps, speed_steps, lateral = [], [], [], []
     for tr in trajectories:
         holds += _holds(tr)
-        steer_steps += _steps(tr, tr.steer_cmd_deg, STEER_TOL_DEG, MIN_STEER_STEP_DEG)
-        speed_steps += _steps(tr, tr.speed_cmd_mps, SPEED_TOL_MPS, MIN_SPEED_STEP_MPS)
+        steer_steps += _step_sizes(tr, tr.steer_cmd_deg, STEER_TOL_DEG, MIN_STEER_STEP_DEG)
+        speed_steps += _step_sizes(tr, tr.speed_cmd_mps, SPEED_TOL_MPS, MIN_SPEED_STEP_MPS)
         moving = tr.speed_measured_mps[:-1] >= MIN_MOVING_MPS
         lateral.append(_lateral_mps2(tr)[moving])
     lat = np.concatenate(lateral) if lateral else np.zeros(0)
     periods = np.concatenate([np.diff(tr.t) for tr in trajectories]) if trajectories else np.zeros(0)
     return _Excitation(
         holds=holds,
-        steering_steps=steer_steps,
-        speed_steps=speed_steps,
+        steering_steps=len(steer_steps),
+        large_steering_steps=sum(size >= LARGE_STEER_STEP_DEG for size in steer_steps),
+        speed_steps=len(speed_steps),
+        large_speed_steps=sum(size >= LARGE_SPEED_STEP_MPS for size in speed_steps),
         high_lateral_rows=int(np.sum(lat >= HIGH_LATERAL_MPS2)),
         max_lateral_mps2=float(lat.max()) if lat.size else 0.0,
         row_period_s=float(np.median(periods)) if periods.size else math.nan,
@@ -415,6 +445,27 @@ def _steering_steps(ex: _Excitation) -> _Verdict:
     return ex.steering_steps >= MIN_STEPS, ev, need
 
 
+def _rate_verdict(channel: str, steps: int, large: int, sizes: tuple[float, float, str]) -> _Verdict:
+    """A rate limit shows as large steps taking longer than small ones: both sizes, :data:`MIN_STEPS` each."""
+    small_from, large_from, unit = sizes
+    ev = {f"large_{channel}_steps": large, f"small_{channel}_steps": steps - large}
+    need = (
+        f"≥ {MIN_STEPS} {channel} steps of ≥ {large_from:g} {unit} and ≥ {MIN_STEPS} of {small_from:g}-{large_from:g} "
+        f"{unit}, each held ≥ {STEP_HOLD_S:g} s while moving"
+    )
+    return min(steps - large, large) >= MIN_STEPS, ev, need
+
+
+def _steering_rate(ex: _Excitation) -> _Verdict:
+    sizes = (MIN_STEER_STEP_DEG, LARGE_STEER_STEP_DEG, "°")
+    return _rate_verdict("steering", ex.steering_steps, ex.large_steering_steps, sizes)
+
+
+def _speed_rate(ex: _Excitation) -> _Verdict:
+    sizes = (MIN_SPEED_STEP_MPS, LARGE_SPEED_STEP_MPS, "m/s")
+    return _rate_verdict("speed", ex.speed_steps, ex.large_speed_steps, sizes)
+
+
 def _speed_gain(ex: _Excitation) -> _Verdict:
     ev = _levels_evidence("straight", _straight(ex))
     need = (
@@ -442,9 +493,11 @@ _CHECKS = {
     "steering_saturation": _steering_saturation,
     "steering_delay": _steering_steps,
     "steering_lag": _steering_steps,
+    "steering_rate": _steering_rate,
     "speed_gain": _speed_gain,
     "speed_delay": _speed_steps,
     "speed_lag": _speed_steps,
+    "speed_rate": _speed_rate,
     "understeer": _understeer,
     "tyre_friction": _tyre_friction,
 }
@@ -481,6 +534,8 @@ def pairs_confounded(trajectories: list[Trajectory]) -> list[list[str]]:
       turn at large commands is a low gain or a limit);
     - steering_delay, steering_lag and speed_delay, speed_lag: fewer than :data:`MIN_STEPS` clean steps, or rows
       further apart than :data:`MAX_ROW_PERIOD_S`;
+    - steering_lag, steering_rate and speed_lag, speed_rate: steps of one size only (:func:`_rate_verdict`), or
+      coarse rows as above;
     - steering_gain, understeer: steady turning at one speed only (only the product gain / (1 + k·v²) shows).
     """
     ex = _excitation(trajectories)
@@ -492,8 +547,12 @@ def pairs_confounded(trajectories: list[Trajectory]) -> list[list[str]]:
         pairs.append(["steering_gain", "steering_saturation"])
     if coarse or ex.steering_steps < MIN_STEPS:
         pairs.append(["steering_delay", "steering_lag"])
+    if coarse or not _steering_rate(ex)[0]:
+        pairs.append(["steering_lag", "steering_rate"])
     if coarse or ex.speed_steps < MIN_STEPS:
         pairs.append(["speed_delay", "speed_lag"])
+    if coarse or not _speed_rate(ex)[0]:
+        pairs.append(["speed_lag", "speed_rate"])
     if not _understeer(ex)[0]:
         pairs.append(["steering_gain", "understeer"])
     return pairs

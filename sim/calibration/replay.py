@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, replace
+from dataclasses import KW_ONLY, dataclass, replace
 
 import mujoco
 import numpy as np
@@ -63,6 +63,7 @@ class Windows:
     """(W,) index into ``trajectories``."""
     start: np.ndarray
     """(W,) sample index k where each window starts."""
+    _: KW_ONLY
     horizon: int
     """Samples replayed per window, H."""
     row_substeps: list[np.ndarray]
@@ -161,7 +162,9 @@ def make_windows(
             f"no replay window: every episode is shorter than {horizon + 2} rows ({window_s:g} s and a row either side)"
         )
     subs = [row_substeps(tr, timing, median) for tr in trajectories]
-    return Windows(trajectories, np.array(traj, int), np.array(start, int), horizon, subs, timing)
+    return Windows(
+        trajectories, np.array(traj, int), np.array(start, int), horizon=horizon, row_substeps=subs, timing=timing
+    )
 
 
 class Replayer:

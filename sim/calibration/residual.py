@@ -73,7 +73,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 
 import numpy as np
 from scipy import stats
@@ -111,6 +111,7 @@ class _Part:
     label: str
     definition: str
     mask: np.ndarray
+    _: KW_ONLY
     direction: np.ndarray | None = None
     """+1 / -1 per window for a folded ("either way") condition."""
 
@@ -259,7 +260,7 @@ def _signed_parts(
             f"|{what}| > {threshold:g}°; heading and cross-track errors signed toward the "
             + ("turn" if split == "turn" else "swing"),
             left | right,
-            np.sign(value),
+            direction=np.sign(value),
         ),
     ]
 

@@ -86,5 +86,18 @@ def simulate_open_loop(trajectories: list[Trajectory], calibration: CarCalibrati
             physics.command(tr.steer_cmd_deg[k], tr.speed_cmd_mps[k])
             physics.step()
         t = np.arange(len(tr)) / CONTROL_HZ
-        out.append(Trajectory(tr.source, tr.episode, t, tr.steer_cmd_deg, tr.speed_cmd_mps, xs, ys, hs, d, tr.track))
+        out.append(
+            Trajectory(
+                tr.source,
+                tr.episode,
+                t,
+                steer_cmd_deg=tr.steer_cmd_deg,
+                speed_cmd_mps=tr.speed_cmd_mps,
+                x=xs,
+                y=ys,
+                heading_deg=hs,
+                reference_point_m=d,
+                track=tr.track,
+            )
+        )
     return out

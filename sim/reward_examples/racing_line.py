@@ -27,7 +27,7 @@
 # 10 % of laps lost at a random point. LAP_BONUS adds that many of the line's ideal steps to every completed lap's
 # bonus whatever its pace, so a lost lap costs more and the same pace is worth no more: at 1.0 the same 10 % of
 # pace is worth 5.5 % of laps, at 2.0 3.8 %. It ships at 0: raised to 1.0 for DeepRacer's Gazebo car, racer's
-# benchmark measured slower laps and no fewer lost ones (racer's docs/racing.md, 2026-11-28).
+# benchmark measured slower laps and no fewer lost ones (racer's docs/racing.md).
 
 import math
 

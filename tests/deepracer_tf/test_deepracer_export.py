@@ -19,8 +19,9 @@ from typer.testing import CliRunner
 from common.action_space import ActionSpace
 from common.config import EnvConfig
 from common.defaults import DEFAULT_TRACK
-from common.policy import action_space_spec, build_policy, checkpoint_to_bytes, load_policy
+from common.policy import action_space_spec, build_policy
 from common.sensors import lidar_from_ranges, observation_spec
+from common.weights import checkpoint_to_bytes, load_policy
 from model_store import RunStore, open_store
 from racer.cli import app
 from racer.runconfig import build_run

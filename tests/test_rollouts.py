@@ -20,9 +20,10 @@ from deepracer.logs import DeepRacerLog
 from common.defaults import STRAIGHT_TRACK
 from common.errors import OptionError
 from common.keys import Keys
-from common.policy import acting_from_bytes, build_policy
+from common.policy import build_policy
 from common.protocol import decode_segment, encode_segment
 from common.sensors import observation_spec
+from common.weights import acting_from_bytes
 from model_store import RunStore, open_store
 from racer.runconfig import build_run
 from rollout_worker.onnx_policy import OnnxPolicy
@@ -68,7 +69,7 @@ def _network(trainer: Trainer, store: str, version: int) -> torch.nn.Module:
 def test_k_envs_push_k_segments_each_of_one_envs_consecutive_steps(setup):
     trainer, start_worker, _ = setup
     worker = start_worker(worker_index=2, envs_per_worker=3)
-    run_id = trainer.run.run_id
+    run_id, shape, n_actions = trainer.run.run_id, trainer.learner.obs_shape, trainer.learner.n_actions
     per_env: dict[int, list] = {j: [] for j in range(3)}
     for _ in range(4):
         segments = worker.collect()
@@ -77,7 +78,7 @@ def test_k_envs_push_k_segments_each_of_one_envs_consecutive_steps(setup):
         assert [s.policy_version for s in segments] == [0, 0, 0]
         worker.push(segments)
         for j, seg in enumerate(segments):
-            per_env[j].append(decode_segment(encode_segment(seg), run_id, trainer.obs_shape, trainer.n_actions))
+            per_env[j].append(decode_segment(encode_segment(seg), run_id, shape, n_actions))
     assert trainer.read(block_ms=500) == 12 and trainer.stats.dropped == {}
     assert trainer.stats.by_worker == {f"{worker.worker_id}/{j}": 4 for j in range(3)}
     beat = json.loads(redis.Redis.from_url(worker.opts.redis_url).get(Keys(run_id).heartbeat(worker.worker_id)))
@@ -97,6 +98,7 @@ def test_k_envs_push_k_segments_each_of_one_envs_consecutive_steps(setup):
     assert worker.episodes == ended
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_every_step_is_acted_by_its_segments_version_and_switches_come_between_collects(setup):
     trainer, start_worker, store = setup
     worker = start_worker(envs_per_worker=3)
@@ -127,6 +129,7 @@ def test_every_step_is_acted_by_its_segments_version_and_switches_come_between_c
         assert a.arrays["episode_id"][0] == b.arrays["episode_id"][-1] + end
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_one_env_is_the_one_env_worker_and_env_0_keeps_its_seed(setup):
     _, start_worker, _ = setup
     torch.manual_seed(11)
@@ -175,6 +178,7 @@ def test_the_envs_share_one_simtrace_csv_with_episodes_numbered_apart(setup, tmp
     assert df.groupby(["worker", "episode"]).ngroups == len(episodes) and len(df) == len(rows)
 
 
+@pytest.mark.slow(reason="over 2 s of real time on a 2-core machine")
 def test_bad_envs_per_worker_is_one_line(tmp_path):
     with pytest.raises(OptionError, match="--envs-per-worker must be an integer from 1 to 1000, got 0"):
         WorkerOptions("run", "redis://127.0.0.1:1/0", envs_per_worker=0)
@@ -191,6 +195,7 @@ def test_bad_envs_per_worker_is_one_line(tmp_path):
     )
 
 
+@pytest.mark.slow(reason="starts real racer processes")
 def test_bench_worker_json(tmp_path):
     out = tmp_path / "bench.json"
     args = ["bench", "worker", "--envs-per-worker", "1,2", "--seconds", "1", "--repeats", "1", "--json", str(out)]
@@ -209,6 +214,7 @@ def test_bench_worker_json(tmp_path):
     assert data["env_parts_us"]["camera"] > 0 and data["machine"]["cpu"]
 
 
+@pytest.mark.slow(reason="runs racer train with its real processes")
 def test_racer_train_runs_workers_with_several_envs(tmp_path, redis_url):
     (tmp_path / "hp.json").write_text(json.dumps(HP))
     args = ["train", "--workers", "1", "--envs-per-worker", "2", "--track", STRAIGHT_TRACK, "--run-id", "k2"]
