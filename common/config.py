@@ -26,6 +26,7 @@ MAX_ENVS_PER_WORKER = ENV_SEED_STRIDE
 """The most envs one worker runs (``--envs-per-worker``): more would reach the next worker's seeds."""
 
 NetworkName = Literal["shallow", "deep", "deep_deep"]
+Observation = Literal["sensors", "state"]
 
 # DeepRacer's model_metadata "neural_network" names → racer's trunks.
 _METADATA_NETWORKS: dict[str, NetworkName] = {
@@ -209,6 +210,10 @@ class EnvConfig(_Strict):
     penalties (``common/race.py``)."""
     condition: WorldCondition = Field(default_factory=WorldCondition)
     """A held-out condition the env is driven in (evaluation only; training leaves it off)."""
+    observation: Observation = "sensors"
+    """What the env returns: ``sensors``, the model_metadata sensors' observation (the camera, with its LiDAR);
+    ``state``, the car's privileged state on the track (``common.privileged.state_vector``, no rendering), what a
+    teacher run (``racer train --teacher``) learns from."""
 
 
 class WorkerEnv(_Strict):
@@ -238,6 +243,44 @@ class WorkerEnv(_Strict):
         if self.randomization is not None:
             parts.append("own randomization")
         return ", ".join(parts) or "the run's env"
+
+
+class DistillConfig(_Strict):
+    """A student run's teacher (``racer train --teacher``, docs/teacher.md): the camera network learns to act as a
+    privileged teacher (a run of ``observation`` ``state``) does, then, optionally, goes on with PPO on the reward.
+
+    Workers act with the student, or, on a share of the steps, with the teacher (DAgger's mixture: early on the
+    student alone would drive off the track before it saw the corners), and label every step with the teacher's
+    action distribution; the trainer minimizes KL(teacher ‖ student) (``trainer/distill.py``)."""
+
+    teacher: str = Field(pattern=r"^[A-Za-z0-9._-]+:[0-9]+$")
+    """The teacher's checkpoint, ``RUN:VERSION`` in the same store; the trainer copies it into this run
+    (``model_store/runs.py: teacher_key``) when the run is created, and workers read that copy."""
+    updates: int = Field(40, ge=1)
+    """Distillation updates (policy versions 1..updates); PPO on the reward follows while ``fine_tune``."""
+    teacher_share: float = Field(0.5, ge=0, le=1)
+    """The share of steps the workers drive with the teacher's action under policy version 0."""
+    teacher_share_updates: int = Field(10, ge=1)
+    """Versions over which that share falls linearly to 0 (DAgger's decaying mixture); at most ``updates``, so the
+    segments of PPO's versions are all the student's own."""
+    fine_tune: bool = True
+    """After ``updates``, go on with PPO on the run's reward function (False: stop learning; the trainer ends)."""
+
+    @model_validator(mode="after")
+    def _share_ends_first(self) -> DistillConfig:
+        if self.teacher_share_updates > self.updates:
+            raise ValueError(
+                f"teacher_share_updates ({self.teacher_share_updates}) must not exceed updates ({self.updates})"
+            )
+        return self
+
+    def teacher_share_at(self, version: int) -> float:
+        """The share of steps driven with the teacher's action while collecting for ``version``."""
+        return self.teacher_share * max(0.0, 1.0 - version / self.teacher_share_updates)
+
+    def distilling(self, version: int) -> bool:
+        """Whether the update from ``version`` distills (True) or is PPO's (False)."""
+        return version < self.updates
 
 
 class PretrainedError(UserError, ValueError):
@@ -279,6 +322,8 @@ class RunConfig(_Strict):
     pretrained: str | None = Field(None, pattern=r"^[A-Za-z0-9._-]+:(best|latest|[0-9]+)$")
     """Start from another run's weights, ``RUN:CHECKPOINT`` (best, latest or a version) in the same store: DRfC's
     pretrained model, the console's clone. The optimizer starts fresh; the action space must be the same."""
+    distill: DistillConfig | None = None
+    """A student run's teacher and schedule (``racer train --teacher``); None = plain PPO."""
 
     @model_validator(mode="before")
     @classmethod

@@ -41,6 +41,8 @@ class FrameStack:
     def _check(self, frame: np.ndarray, first: bool) -> None:
         """A frame is (H, W, c) and, within an episode, of the first frame's shape: a stack of mixed frames would
         put a camera's channels where the network expects another's."""
+        if frame.ndim == 1 and self.n == 1:
+            return  # a teacher's state vector (``EnvConfig.observation`` state): one, as it is
         if frame.ndim != 3:
             raise ValueError(f"a camera frame is (H, W, channels), got shape {frame.shape}")
         if not first and self.frames and frame.shape != self.frames[-1].shape:

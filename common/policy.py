@@ -63,7 +63,15 @@ from torch.distributions import Categorical, Distribution, Independent, Normal
 
 # The architecture's config lives in common.config (no torch), so that processes that only read configs
 # (racer train's launcher) start without importing torch; re-exported here, where the network is built.
-from common.config import FRAME_HEIGHT, FRAME_WIDTH, NetworkName, PolicyConfig, network_from_metadata  # noqa: F401
+from common.config import (  # noqa: F401
+    FRAME_HEIGHT,
+    FRAME_WIDTH,
+    NetworkName,
+    PolicyConfig,
+    RunConfig,
+    network_from_metadata,
+)
+from common.privileged import STATE_SIZE
 from common.sensors import FRONT_FACING_CAMERA, STEREO_CAMERAS, ObsSpec, observation_spec
 
 Precision = Literal["fp32", "bf16", "fp16"]
@@ -154,13 +162,168 @@ def _dense(in_features: int, widths: Sequence[int], layer: type[nn.Linear] = nn.
     return layers
 
 
-class ActorCritic(nn.Module):
-    """A shared trunk (camera CNN, with a LiDAR: camera CNN + LiDAR embedder + middleware) with a policy head and a
-    value head.
-
-    ``forward`` returns the distribution parameters (logits, or the Gaussian mean in env units) and V(o).
+class PolicyNetwork(nn.Module):
+    """What every racer policy network is: a trunk giving ``hidden`` features of an observation, a policy head and a
+    value head. ``forward`` returns the distribution parameters (logits, or the Gaussian mean in env units) and V(o).
     For networks with dropout or batch norm, rollout workers should call ``eval()`` before acting.
-    """
+
+    Subclasses set ``obs_shape``, ``obs_dtype``, ``lidar_size``, ``action_kind``, ``cfg``, ``hidden`` and
+    ``trunk_dtype``, call ``_build_policy_head`` and write ``features``."""
+
+    obs_shape: tuple[int, ...]
+    """One observation's shape: (H, W, C) camera frames, or (D,) for a state vector."""
+    obs_dtype: torch.dtype = torch.uint8
+    """The observations' dtype: uint8 camera frames, or float32 state vectors."""
+    lidar_size: int = 0
+
+    def features(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> torch.Tensor:
+        """The trunk's float32 (B, hidden) features of a batch of observations."""
+        raise NotImplementedError
+
+    def _build_policy_head(
+        self, n_actions: int | None, low: tuple[float, ...] | None, high: tuple[float, ...] | None
+    ) -> int:
+        """Create ``policy_head`` (and for continuous actions the Gaussian's scale); return the head's width."""
+        if self.action_kind == "discrete":
+            if n_actions is None or n_actions < 1:
+                raise ValueError(f"a discrete policy needs n_actions >= 1, got {n_actions}")
+            self.policy_head = _init(nn.Linear(self.hidden, n_actions), 0.01)
+            return n_actions
+        if self.action_kind != "continuous":
+            raise ValueError(f"action_kind must be 'discrete' or 'continuous', got {self.action_kind!r}")
+        if low is None or high is None or len(low) != len(high) or not low:
+            raise ValueError(f"a continuous policy needs action_low and action_high of one length, got {low}, {high}")
+        lo, hi = torch.tensor(low, dtype=torch.float32), torch.tensor(high, dtype=torch.float32)
+        if not (torch.isfinite(lo).all() and torch.isfinite(hi).all() and (lo <= hi).all()):
+            raise ValueError(f"action bounds are not finite and ordered: low {low}, high {high}")
+        # The head works in units of half the range, centred on the range: with the 0.01 init the initial
+        # mean is mid-range and the initial std (exp(0) = 1) half the range, whatever the units.
+        half = (hi - lo) / 2  # a zero-width range (low == high) gets a unit scale: a Normal needs std > 0
+        self.register_buffer("action_mid", (hi + lo) / 2)
+        self.register_buffer("action_half", torch.where(half > 0, half, torch.ones_like(half)))
+        # The range itself, for the greedy action's clipping (action_half is 1 where the range has no width). Not in
+        # the state dict, so checkpoints from before it load as they are.
+        self.register_buffer("action_low", lo, persistent=False)
+        self.register_buffer("action_high", hi, persistent=False)
+        self.policy_head = _init(nn.Linear(self.hidden, len(low)), 0.01)
+        self.log_std = nn.Parameter(torch.zeros(len(low)))
+        return len(low)
+
+    def set_trunk_precision(self, precision: Precision) -> None:
+        """Run the convolutions and the dense layer in ``bf16`` or ``fp16`` (autocast on the input's device: the
+        weights stay float32) or ``fp32``.
+
+        The heads, the distributions and the losses stay float32 either way: bf16's 8-bit mantissa is fine for
+        features but would put ~0.4 % noise on the logits, hence on PPO's probability ratios. fp16's gradients need
+        loss scaling (``trainer.precision.grad_scaler``); it is meant for GPUs without bf16.
+        """
+        dtypes = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
+        if precision not in dtypes:
+            raise ValueError(f"precision must be 'fp32', 'bf16' or 'fp16', got {precision!r}")
+        self.trunk_dtype = dtypes[precision]
+
+    def forward(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(logits (B, n) or Gaussian mean (B, d) in env units, V(o) (B,)) of a uint8 (B, H, W, C) batch (and its
+        float32 (B, N) LiDAR batch for a network with a LiDAR)."""
+        h = self.features(obs, lidar)
+        params = self.policy_head(h)
+        if self.action_kind == "continuous":
+            params = self.action_mid + self.action_half * params
+        return params, self.value_head(h).squeeze(-1)
+
+    def action_distribution(self, params: torch.Tensor) -> Distribution:
+        """The action distribution for ``forward``'s parameters: Categorical over action indices, or Independent(Normal)
+        over actions in env units with this network's standard deviation."""
+        return self._dist(params)
+
+    def labels(self, params: torch.Tensor) -> torch.Tensor:
+        """``forward``'s parameters as a distilling run's label rows (``label_distribution`` reads them back): the
+        logits (B, n), or the Gaussian's means then its standard deviations (B, 2d)."""
+        params = params.detach().float()
+        if self.action_kind == "discrete":
+            return params
+        return torch.cat([params, self._std().detach().expand_as(params)], dim=-1)
+
+    def _dist(self, params: torch.Tensor) -> Distribution:
+        """The action distribution for ``forward``'s parameters."""
+        if self.action_kind == "discrete":
+            return Categorical(logits=params)
+        return Independent(Normal(params, self._std().expand_as(params)), 1)
+
+    def _std(self) -> torch.Tensor:
+        """The Gaussian's standard deviation in the env's units, one per action dimension."""
+        return self.action_half * self.log_std.exp()
+
+    def greedy(self, params: torch.Tensor) -> torch.Tensor:
+        """The greedy action: the argmax of the logits; for continuous actions the Gaussian's mean, or with
+        ``greedy_action`` ``expected`` the mean of the action the env executes (:func:`censored_mean`)."""
+        if self.action_kind == "discrete":
+            return params.argmax(-1)
+        if self.cfg.greedy_action == "expected":
+            return censored_mean(params, self._std(), self.action_low, self.action_high)
+        return params
+
+    def distribution(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> Distribution:
+        """π(·|o): Categorical over action indices, or Independent(Normal) over actions in env units."""
+        return self._dist(self(obs, lidar)[0])
+
+    @torch.no_grad()
+    def act(
+        self, obs: torch.Tensor, deterministic: bool = False, lidar: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(action, log π(action|o), V(o)) for a uint8 batch (and its LiDAR batch); deterministic = the greedy action
+        (:meth:`greedy`)."""
+        params, value = self(obs, lidar)
+        return self.act_from(params, value, deterministic)
+
+    @torch.no_grad()
+    def act_from(
+        self, params: torch.Tensor, value: torch.Tensor, deterministic: bool = False
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``act`` from ``forward``'s outputs (params, value), for a forward pass run elsewhere (the rollout worker's
+        ONNX Runtime copy of this network): the action drawn from this network's distribution, its log-probability."""
+        dist = self._dist(params)
+        action = self.greedy(params) if deterministic else dist.sample()
+        return action, dist.log_prob(action), value
+
+    def act_numpy(
+        self, obs: np.ndarray, deterministic: bool = False, lidar: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``act`` on a numpy uint8 (B, H, W, C) batch (and, with a LiDAR, its float32 (B, N) batch): (int64 (B,) or
+        float32 (B, d) actions, float32 log-probs, float32 values)."""
+        if obs.ndim != len(self.obs_shape) + 1:
+            raise ValueError(f"act_numpy takes a batch (B, *{self.obs_shape}), got shape {obs.shape}")
+        device = self.value_head.weight.device
+        lidar_t = None if lidar is None else torch.from_numpy(np.ascontiguousarray(lidar)).to(device)
+        obs_t = torch.from_numpy(np.ascontiguousarray(obs)).to(device)
+        return self._numpy_outputs(*self.act(obs_t, deterministic, lidar_t))
+
+    def act_numpy_from(
+        self, params: np.ndarray, value: np.ndarray, deterministic: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``act_from`` on numpy float32 ``forward`` outputs, returning what ``act_numpy`` returns."""
+        return self._numpy_outputs(*self.act_from(torch.from_numpy(params), torch.from_numpy(value), deterministic))
+
+    def _numpy_outputs(
+        self, action: torch.Tensor, logp: torch.Tensor, value: torch.Tensor
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``act``'s tensors as numpy: int64 (B,) or float32 (B, d) actions, float32 log-probs and values."""
+        action, logp, value = action.cpu(), logp.cpu(), value.cpu()
+        action_np = action.numpy().astype(np.int64 if self.action_kind == "discrete" else np.float32)
+        return action_np, logp.numpy().astype(np.float32), value.numpy().astype(np.float32)
+
+    def evaluate(
+        self, obs: torch.Tensor, actions: torch.Tensor, lidar: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(log π(actions|o), entropy of π(·|o), V(o)), each (B,), with gradients, for the trainer."""
+        params, value = self(obs, lidar)
+        dist = self._dist(params)
+        return dist.log_prob(actions), dist.entropy(), value
+
+
+class ActorCritic(PolicyNetwork):
+    """DeepRacer's network: a shared trunk (camera CNN, with a LiDAR: camera CNN + LiDAR embedder + middleware) with a
+    policy head and a value head (``PolicyNetwork``)."""
 
     def __init__(
         self,
@@ -220,48 +383,6 @@ class ActorCritic(nn.Module):
         self.trunk_dtype: torch.dtype | None = None
         """None = float32; torch.bfloat16 or torch.float16 = the trunk under autocast (``set_trunk_precision``)."""
 
-    def _build_policy_head(
-        self, n_actions: int | None, low: tuple[float, ...] | None, high: tuple[float, ...] | None
-    ) -> int:
-        """Create ``policy_head`` (and for continuous actions the Gaussian's scale); return the head's width."""
-        if self.action_kind == "discrete":
-            if n_actions is None or n_actions < 1:
-                raise ValueError(f"a discrete policy needs n_actions >= 1, got {n_actions}")
-            self.policy_head = _init(nn.Linear(self.hidden, n_actions), 0.01)
-            return n_actions
-        if self.action_kind != "continuous":
-            raise ValueError(f"action_kind must be 'discrete' or 'continuous', got {self.action_kind!r}")
-        if low is None or high is None or len(low) != len(high) or not low:
-            raise ValueError(f"a continuous policy needs action_low and action_high of one length, got {low}, {high}")
-        lo, hi = torch.tensor(low, dtype=torch.float32), torch.tensor(high, dtype=torch.float32)
-        if not (torch.isfinite(lo).all() and torch.isfinite(hi).all() and (lo <= hi).all()):
-            raise ValueError(f"action bounds are not finite and ordered: low {low}, high {high}")
-        # The head works in units of half the range, centred on the range: with the 0.01 init the initial
-        # mean is mid-range and the initial std (exp(0) = 1) half the range, whatever the units.
-        half = (hi - lo) / 2  # a zero-width range (low == high) gets a unit scale: a Normal needs std > 0
-        self.register_buffer("action_mid", (hi + lo) / 2)
-        self.register_buffer("action_half", torch.where(half > 0, half, torch.ones_like(half)))
-        # The range itself, for the greedy action's clipping (action_half is 1 where the range has no width). Not in
-        # the state dict, so checkpoints from before it load as they are.
-        self.register_buffer("action_low", lo, persistent=False)
-        self.register_buffer("action_high", hi, persistent=False)
-        self.policy_head = _init(nn.Linear(self.hidden, len(low)), 0.01)
-        self.log_std = nn.Parameter(torch.zeros(len(low)))
-        return len(low)
-
-    def set_trunk_precision(self, precision: Precision) -> None:
-        """Run the convolutions and the dense layer in ``bf16`` or ``fp16`` (autocast on the input's device: the
-        weights stay float32) or ``fp32``.
-
-        The heads, the distributions and the losses stay float32 either way: bf16's 8-bit mantissa is fine for
-        features but would put ~0.4 % noise on the logits, hence on PPO's probability ratios. fp16's gradients need
-        loss scaling (``trainer.precision.grad_scaler``); it is meant for GPUs without bf16.
-        """
-        dtypes = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
-        if precision not in dtypes:
-            raise ValueError(f"precision must be 'fp32', 'bf16' or 'fp16', got {precision!r}")
-        self.trunk_dtype = dtypes[precision]
-
     def features(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> torch.Tensor:
         """The trunk's ``hidden`` features (float32) of a uint8 (B, H, W, C) batch and, for a network with a LiDAR, its
         float32 (B, N) LiDAR vectors."""
@@ -297,90 +418,85 @@ class ActorCritic(nn.Module):
         parts = [self.camera_embedder(x), self.lidar_embedder(lidar)]
         return self.middleware(torch.cat(parts[::-1] if self._lidar_first else parts, dim=-1))
 
-    def forward(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """(logits (B, n) or Gaussian mean (B, d) in env units, V(o) (B,)) of a uint8 (B, H, W, C) batch (and its
-        float32 (B, N) LiDAR batch for a network with a LiDAR)."""
-        h = self.features(obs, lidar)
-        params = self.policy_head(h)
-        if self.action_kind == "continuous":
-            params = self.action_mid + self.action_half * params
-        return params, self.value_head(h).squeeze(-1)
 
-    def _dist(self, params: torch.Tensor) -> Distribution:
-        """The action distribution for ``forward``'s parameters."""
-        if self.action_kind == "discrete":
-            return Categorical(logits=params)
-        return Independent(Normal(params, self._std().expand_as(params)), 1)
+STATE_HIDDEN: tuple[int, ...] = (256, 256)
+"""Widths of a privileged teacher's dense layers (``StatePolicy``), units: the LiDAR embedder's, on a vector a tenth
+its size."""
 
-    def _std(self) -> torch.Tensor:
-        """The Gaussian's standard deviation in the env's units, one per action dimension."""
-        return self.action_half * self.log_std.exp()
 
-    def greedy(self, params: torch.Tensor) -> torch.Tensor:
-        """The greedy action: the argmax of the logits; for continuous actions the Gaussian's mean, or with
-        ``greedy_action`` ``expected`` the mean of the action the env executes (:func:`censored_mean`)."""
-        if self.action_kind == "discrete":
-            return params.argmax(-1)
-        if self.cfg.greedy_action == "expected":
-            return censored_mean(params, self._std(), self.action_low, self.action_high)
-        return params
+class StatePolicy(PolicyNetwork):
+    """A privileged teacher's network (``racer train --teacher``): dense layers on the car's state vector
+    (``common.privileged.state_vector``, float32 (B, D)), then the heads of every racer network. No camera: a step
+    costs a few microseconds of matrix products, so the teacher learns the race from thousands of steps a second."""
 
-    def distribution(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> Distribution:
-        """π(·|o): Categorical over action indices, or Independent(Normal) over actions in env units."""
-        return self._dist(self(obs, lidar)[0])
+    obs_dtype = torch.float32
 
-    @torch.no_grad()
-    def act(
-        self, obs: torch.Tensor, deterministic: bool = False, lidar: torch.Tensor | None = None
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(action, log π(action|o), V(o)) for a uint8 batch (and its LiDAR batch); deterministic = the greedy action
-        (:meth:`greedy`)."""
-        params, value = self(obs, lidar)
-        return self.act_from(params, value, deterministic)
+    def __init__(
+        self,
+        state_size: int,
+        action_kind: ActionKind,
+        n_actions: int | None = None,
+        action_low: tuple[float, ...] | None = None,
+        action_high: tuple[float, ...] | None = None,
+        cfg: PolicyConfig | None = None,
+    ) -> None:
+        super().__init__()
+        self.cfg = cfg or PolicyConfig()
+        self.obs_shape = (int(state_size),)
+        self.action_kind = action_kind
+        self.trunk = nn.Sequential(*_dense(self.obs_shape[0], STATE_HIDDEN))
+        self.hidden = STATE_HIDDEN[-1]
+        self.value_head = _init(nn.Linear(self.hidden, 1), 1.0)
+        self.action_dim = self._build_policy_head(n_actions, action_low, action_high)
+        self.trunk_dtype: torch.dtype | None = None
 
-    @torch.no_grad()
-    def act_from(
-        self, params: torch.Tensor, value: torch.Tensor, deterministic: bool = False
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``act`` from ``forward``'s outputs (params, value), for a forward pass run elsewhere (the rollout worker's
-        ONNX Runtime copy of this network): the action drawn from this network's distribution, its log-probability."""
-        dist = self._dist(params)
-        action = self.greedy(params) if deterministic else dist.sample()
-        return action, dist.log_prob(action), value
+    def features(self, obs: torch.Tensor, lidar: torch.Tensor | None = None) -> torch.Tensor:
+        """The trunk's ``hidden`` features (float32) of a float32 (B, D) batch of state vectors."""
+        if obs.dtype != torch.float32:
+            raise TypeError(f"state vectors must be float32, got {obs.dtype}")
+        if tuple(obs.shape[1:]) != self.obs_shape or lidar is not None:
+            raise ValueError(
+                f"a state network takes (B, {self.obs_shape[0]}) vectors and no LiDAR, got {tuple(obs.shape)}"
+            )
+        if self.trunk_dtype is None:
+            return self.trunk(obs)
+        with torch.autocast(obs.device.type, dtype=self.trunk_dtype):
+            return self.trunk(obs).float()
 
-    def act_numpy(
-        self, obs: np.ndarray, deterministic: bool = False, lidar: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``act`` on a numpy uint8 (B, H, W, C) batch (and, with a LiDAR, its float32 (B, N) batch): (int64 (B,) or
-        float32 (B, d) actions, float32 log-probs, float32 values)."""
-        if obs.ndim != 4:
-            raise ValueError(f"act_numpy takes a batch (B, H, W, C), got shape {obs.shape}")
-        device = self.value_head.weight.device
-        lidar_t = None if lidar is None else torch.from_numpy(np.ascontiguousarray(lidar)).to(device)
-        obs_t = torch.from_numpy(np.ascontiguousarray(obs)).to(device)
-        return self._numpy_outputs(*self.act(obs_t, deterministic, lidar_t))
 
-    def act_numpy_from(
-        self, params: np.ndarray, value: np.ndarray, deterministic: bool = False
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``act_from`` on numpy float32 ``forward`` outputs, returning what ``act_numpy`` returns."""
-        return self._numpy_outputs(*self.act_from(torch.from_numpy(params), torch.from_numpy(value), deterministic))
+def label_width(action_kind: str, action_dim: int) -> int:
+    """P, the width of a label row (``PolicyNetwork.labels``): ``action_dim`` logits for a discrete policy,
+    ``2 * action_dim`` (means then standard deviations) for a continuous one."""
+    if action_dim < 1:
+        raise ValueError(f"action_dim must be at least 1, got {action_dim}")
+    if action_kind == "discrete":
+        return action_dim
+    if action_kind == "continuous":
+        return 2 * action_dim
+    raise ValueError(f"action_kind must be 'discrete' or 'continuous', got {action_kind!r}")
 
-    def _numpy_outputs(
-        self, action: torch.Tensor, logp: torch.Tensor, value: torch.Tensor
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``act``'s tensors as numpy: int64 (B,) or float32 (B, d) actions, float32 log-probs and values."""
-        action, logp, value = action.cpu(), logp.cpu(), value.cpu()
-        action_np = action.numpy().astype(np.int64 if self.action_kind == "discrete" else np.float32)
-        return action_np, logp.numpy().astype(np.float32), value.numpy().astype(np.float32)
 
-    def evaluate(
-        self, obs: torch.Tensor, actions: torch.Tensor, lidar: torch.Tensor | None = None
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(log π(actions|o), entropy of π(·|o), V(o)), each (B,), with gradients, for the trainer."""
-        params, value = self(obs, lidar)
-        dist = self._dist(params)
-        return dist.log_prob(actions), dist.entropy(), value
+def label_distribution(labels: torch.Tensor, action_kind: str) -> Distribution:
+    """The action distribution of (B, P) label rows (``PolicyNetwork.labels``): Categorical(logits=labels), or
+    Independent(Normal(labels[:, :d], labels[:, d:]), 1) for P = 2·d.
+
+    ValueError for labels that are not (B, P), an odd or empty continuous width, or a standard deviation that is not
+    positive (NaN included): a corrupt label row should stop the run, not train the student on it.
+    """
+    if labels.dim() != 2 or labels.shape[1] < 1:
+        raise ValueError(f"label rows of shape {tuple(labels.shape)}, expected (B, P) with P >= 1")
+    if action_kind == "discrete":
+        return Categorical(logits=labels)
+    if action_kind != "continuous":
+        raise ValueError(f"action_kind must be 'discrete' or 'continuous', got {action_kind!r}")
+    width = labels.shape[1]
+    if width % 2:
+        raise ValueError(f"continuous labels are means then standard deviations (2·d wide), got width {width}")
+    d = width // 2
+    mean, std = labels[:, :d], labels[:, d:]
+    if not bool((std > 0).all()):  # not (std <= 0): a NaN std fails too
+        raise ValueError("continuous labels hold a standard deviation that is not positive")
+    return Independent(Normal(mean, std), 1)
 
 
 def censored_mean(mean: torch.Tensor, std: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
@@ -415,6 +531,31 @@ def build_policy(
         high = tuple(float(v) for v in action_space_spec["high"])
         return ActorCritic(obs_shape, "continuous", action_low=low, action_high=high, cfg=cfg, sensors=sensors)
     raise ValueError(f"action_space_spec kind must be 'discrete' or 'continuous', got {kind!r}")
+
+
+def build_state_policy(
+    state_size: int, action_space_spec: dict[str, Any], cfg: PolicyConfig | None = None
+) -> StatePolicy:
+    """A ``StatePolicy`` for ``build_policy``'s action space specs, on state vectors of ``state_size``."""
+    kind = action_space_spec.get("kind")
+    if kind == "discrete":
+        return StatePolicy(state_size, "discrete", n_actions=int(action_space_spec["n"]), cfg=cfg)
+    if kind == "continuous":
+        low = tuple(float(v) for v in action_space_spec["low"])
+        high = tuple(float(v) for v in action_space_spec["high"])
+        return StatePolicy(state_size, "continuous", action_low=low, action_high=high, cfg=cfg)
+    raise ValueError(f"action_space_spec kind must be 'discrete' or 'continuous', got {kind!r}")
+
+
+def policy_for_run(run: RunConfig, actions: Any, frame: tuple[int, int] = (FRAME_HEIGHT, FRAME_WIDTH)) -> PolicyNetwork:
+    """The network of a run (its ``common.action_space.ActionSpace`` ``actions``, its hyperparameters' frame stack, its
+    env's ``observation``): DeepRacer's network on ``frame``-sized camera frames, or a teacher's ``StatePolicy``.
+    The one place the trainer, the workers, the evaluator and the store's loader build a run's network."""
+    spec = action_space_spec(actions)
+    if run.env.observation == "state":
+        return build_state_policy(STATE_SIZE, spec, run.policy)
+    obs = observation_spec(actions.sensor, run.hyperparams.stack_size)
+    return build_policy(obs.camera_shape(frame), spec, run.policy, actions.sensor)
 
 
 def action_space_spec(space: Any) -> dict[str, Any]:

@@ -23,7 +23,13 @@ next_values     float32   (T,)               V(o_{t+1}): the final observation's
 episode_id      int64     (T,)               worker-local episode number of each step
 lidar           float32   (T, N)             the LiDAR part of o_t (only with a LiDAR sensor)
 next_lidar      float32   (1, N)             the LiDAR part of o_T (only with a LiDAR sensor)
+teacher         float32   (T, P)             the teacher's action distribution at o_t (only in a
+                                             distilling run: ``trainer.distill.label_width``)
 ==============  ========  =================  =====================================================
+
+A teacher run (``EnvConfig.observation`` ``state``) sends float32 state vectors instead of camera frames: ``obs``
+(T, D) and ``next_obs`` (1, D) are fields ``a:obs`` and ``a:next_obs`` of raw bytes like the rest, and the segment
+has no ``a:frames``, ``a:frame_index`` or header ``frames``.
 
 On the wire (schema 2) every array but ``obs`` and ``next_obs`` is a field ``a:<name>`` of raw bytes. The T + 1
 camera observations travel as their distinct channel planes: a stacked observation's C channels are C planes of
@@ -91,6 +97,10 @@ _ARRAY_DTYPES: dict[str, tuple[str, ...]] = {
 }
 _LIDAR_DTYPES: dict[str, tuple[str, ...]] = {"lidar": ("float32",), "next_lidar": ("float32",)}
 """The arrays of a run with a LiDAR sensor, in addition to ``_ARRAY_DTYPES``."""
+_STATE_DTYPES: dict[str, tuple[str, ...]] = {"obs": ("float32",), "next_obs": ("float32",)}
+"""The observations of a teacher run (state vectors, sent raw), in place of the camera frames and their index."""
+_TEACHER_DTYPES: dict[str, tuple[str, ...]] = {"teacher": ("float32",)}
+"""The teacher's action distribution at each step of a distilling run, in addition to the rest."""
 
 
 class ProtocolError(ValueError):
@@ -140,10 +150,11 @@ class Segment:
 
 def encode_segment(seg: Segment) -> dict[str, bytes]:
     """Stream-entry fields for a segment: ``header`` JSON, raw bytes per small array, the camera frames compressed
-    (each distinct plane once; see the module docstring)."""
-    planes, index = frame_table(seg.arrays["obs"], seg.arrays["next_obs"])
-    arrays = {name: arr for name, arr in seg.arrays.items() if name not in _CAMERA_ARRAYS}
-    arrays["frame_index"] = index
+    (each distinct plane once; see the module docstring); a teacher run's float32 state vectors go raw."""
+    state = seg.arrays["obs"].dtype == np.float32
+    arrays = dict(seg.arrays) if state else {n: a for n, a in seg.arrays.items() if n not in _CAMERA_ARRAYS}
+    if not state:
+        planes, arrays["frame_index"] = frame_table(seg.arrays["obs"], seg.arrays["next_obs"])
     specs = {}
     fields: dict[str, bytes] = {}
     for name, arr in arrays.items():
@@ -152,7 +163,6 @@ def encode_segment(seg: Segment) -> dict[str, bytes]:
             a = a.astype(np.uint8)
         specs[name] = {"dtype": str(a.dtype), "shape": list(a.shape)}
         fields[f"a:{name}"] = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes()
-    fields["a:frames"] = _deflate(planes)
     header = {
         "schema": SCHEMA_VERSION,
         "kind": "segment",
@@ -165,8 +175,10 @@ def encode_segment(seg: Segment) -> dict[str, bytes]:
         "episodes": [e.__dict__ for e in seg.episodes],
         "created": seg.created,
         "arrays": specs,
-        "frames": {"codec": FRAME_CODEC, "shape": [len(planes), *planes[0].shape]},
     }
+    if not state:
+        fields["a:frames"] = _deflate(planes)
+        header["frames"] = {"codec": FRAME_CODEC, "shape": [len(planes), *planes[0].shape]}
     fields["header"] = json.dumps(header, separators=(",", ":")).encode()
     return fields
 
@@ -232,12 +244,14 @@ def decode_segment(
     obs_shape: tuple[int, ...],
     n_actions: int | None,
     lidar: LidarSpec | None = None,
+    teacher_width: int | None = None,
 ) -> Segment:
     """Validate stream-entry fields and rebuild the Segment; raise ProtocolError on anything malformed.
 
-    ``obs_shape`` is the stacked camera observation (H, W, C); ``n_actions`` the number of discrete actions (None for
-    a continuous space of 2 values); ``lidar`` the run's LiDAR (``ObsSpec.lidar``; None: the segment must have no
-    LiDAR arrays).
+    ``obs_shape`` is the stacked camera observation (H, W, C), or (D,) for a teacher run's state vectors;
+    ``n_actions`` the number of discrete actions (None for a continuous space of 2 values); ``lidar`` the run's LiDAR
+    (``ObsSpec.lidar``; None: the segment must have no LiDAR arrays); ``teacher_width`` the width of a distilling
+    run's ``teacher`` rows (``trainer.distill.label_width``; None: the segment must have none).
     """
     f = {(k.decode() if isinstance(k, bytes) else k): v for k, v in fields.items()}
     header = _header(f)
@@ -246,16 +260,22 @@ def decode_segment(
     steps = header.get("steps")
     if not isinstance(steps, int) or isinstance(steps, bool) or not 1 <= steps <= MAX_SEGMENT_STEPS:
         raise ProtocolError("bad_header", f"steps {steps!r}")
-    arrays = {name: _array(f, header, name) for name in _ARRAY_DTYPES}
-    if lidar is not None:
-        arrays.update({name: _array(f, header, name, _LIDAR_DTYPES) for name in _LIDAR_DTYPES})
+    state = len(obs_shape) == 1
+    arrays = {name: _array(f, header, name) for name in _ARRAY_DTYPES if not (state and name == "frame_index")}
+    _optional(arrays, f, header, _LIDAR_DTYPES, expected=lidar is not None, without="a run without a LiDAR")
+    _optional(arrays, f, header, _TEACHER_DTYPES, expected=teacher_width is not None, without="a run without a teacher")
+    if state:
+        if "a:frames" in f or "frames" in header:
+            raise ProtocolError("bad_header", "camera frames in a segment of state vectors")
+        arrays.update({name: _array(f, header, name, _STATE_DTYPES) for name in _STATE_DTYPES})
     else:
-        _refuse_lidar(f, header)
-    camera = _camera(f, header, arrays.pop("frame_index"), steps, tuple(obs_shape))
-    arrays["obs"], arrays["next_obs"] = camera[:steps], camera[steps:]
+        camera = _camera(f, header, arrays.pop("frame_index"), steps, tuple(obs_shape))
+        arrays["obs"], arrays["next_obs"] = camera[:steps], camera[steps:]
     _check_shapes(arrays, steps, tuple(obs_shape), n_actions)
     if lidar is not None:
         _check_lidar(arrays, steps, lidar)
+    if teacher_width is not None:
+        _check_rows(arrays, "teacher", (steps, teacher_width))
     return Segment(
         run_id=run_id,
         worker_id=_str(header, "worker_id"),
@@ -353,12 +373,32 @@ def _array(
     return np.frombuffer(raw, dtype=dt).reshape(shape).astype(dtype, copy=False)
 
 
-def _refuse_lidar(f: dict[str, bytes], header: dict) -> None:
-    """A run without a LiDAR takes no LiDAR arrays (they would be dropped unseen, or mean another run's sensors)."""
+def _optional(
+    arrays: dict[str, np.ndarray],
+    f: dict[str, bytes],
+    header: dict,
+    dtypes: dict[str, tuple[str, ...]],
+    *,
+    expected: bool,
+    without: str,
+) -> None:
+    """Read optional arrays a run has (``expected``); refuse them in a segment of a run without them (they would be
+    dropped unseen, or mean another run's sensors or teacher)."""
+    if expected:
+        arrays.update({name: _array(f, header, name, dtypes) for name in dtypes})
+        return
     specs = header.get("arrays")
-    for name in _LIDAR_DTYPES:
+    for name in dtypes:
         if f"a:{name}" in f or (isinstance(specs, dict) and name in specs):
-            raise ProtocolError("bad_header", f"array {name} in a segment of a run without a LiDAR")
+            raise ProtocolError("bad_header", f"array {name} in a segment of {without}")
+
+
+def _check_rows(a: dict[str, np.ndarray], name: str, shape: tuple[int, int]) -> None:
+    """``a[name]`` is of ``shape`` and finite."""
+    if a[name].shape != shape:
+        raise ProtocolError("bad_shape", f"{name}: {a[name].shape}, expected {shape}")
+    if not np.all(np.isfinite(a[name])):
+        raise ProtocolError("non_finite", name)
 
 
 def _check_lidar(a: dict[str, np.ndarray], steps: int, lidar: LidarSpec) -> None:
@@ -383,7 +423,8 @@ def _check_shapes(a: dict[str, np.ndarray], steps: int, obs_shape: tuple, n_acti
         want = expect.get(name, (steps,))
         if a[name].shape != want:
             raise ProtocolError("bad_shape", f"{name}: {a[name].shape}, expected {want}")
-    for name in ("rewards", "logp", "values", "next_values"):
+    finite = ("rewards", "logp", "values", "next_values", *(("obs", "next_obs") if len(obs_shape) == 1 else ()))
+    for name in finite:
         if not np.all(np.isfinite(a[name])):
             raise ProtocolError("non_finite", name)
     act = a["actions"]

@@ -18,8 +18,8 @@ from torch import nn
 
 from common.config import FRAME_HEIGHT, FRAME_WIDTH
 from common.errors import UserError
-from common.policy import ActorCritic, action_space_spec, build_policy
-from common.sensors import observation_spec
+from common.policy import PolicyNetwork, action_space_spec, build_state_policy, policy_for_run
+from common.privileged import STATE_SIZE
 
 if TYPE_CHECKING:
     from common.action_space import ActionSpace
@@ -123,15 +123,14 @@ def misfit(model: nn.Module, state: dict[str, Any]) -> str | None:
     return "; ".join(wrong[:2]) or f"layers differ: {', '.join(missing[:3])}"
 
 
-def load_weights(model: ActorCritic, state: dict[str, Any], source: str) -> None:
+def load_weights(model: PolicyNetwork, state: dict[str, Any], source: str) -> None:
     """Load ``state`` into ``model``; CheckpointError naming ``source`` (e.g. "run r version 3") and the network
     when the weights were made for another network (a run from before racer's networks became the simapp's, say)."""
     problem = misfit(model, state)
     if problem:
-        sensors = "+".join(model.spec.sensors)
-        raise CheckpointError(
-            f"{source}: its weights do not fit a {model.cfg.network} network for {sensors} ({problem})"
-        )
+        spec = getattr(model, "spec", None)
+        what = f"{model.cfg.network} network for {'+'.join(spec.sensors)}" if spec else "state network"
+        raise CheckpointError(f"{source}: its weights do not fit a {what} ({problem})")
     model.load_state_dict(state)
 
 
@@ -143,26 +142,36 @@ def load_policy(
     *,
     frame: tuple[int, int] = (FRAME_HEIGHT, FRAME_WIDTH),
     device: torch.device | str = "cpu",
-) -> tuple[ActorCritic, dict[str, Any]]:
+) -> tuple[PolicyNetwork, dict[str, Any]]:
     """A stored checkpoint's network, ready to act, and the checkpoint's metadata.
 
     ``run`` is the run's config or its id (its config.json is then read); ``actions`` the action space the network
     acts in, whose ``sensor`` list gives its inputs; ``checkpoint`` a version, ``"latest"`` or ``"best"``; ``frame``
     the (height, width) of the camera frames it takes (DeepRacer's by default; the frame stack comes from the run's
-    hyperparameters). The network is in eval mode, on ``device`` (the CPU unless asked: the weights are read onto the
-    CPU, then moved).
+    hyperparameters; a teacher run's network takes state vectors instead, ``common.policy.policy_for_run``). The
+    network is in eval mode, on ``device`` (the CPU unless asked: the weights are read onto the CPU, then moved).
     StoreKeyError if the run or checkpoint is missing; CheckpointError if the bytes are not a checkpoint.
     """
     if isinstance(run, str):
         run = runs.read_config(run)
     payload, meta = runs.load_checkpoint(run.run_id, checkpoint)
-    spec = observation_spec(actions.sensor, run.hyperparams.stack_size)
-    model = build_policy(spec.camera_shape(frame), action_space_spec(actions), run.policy, actions.sensor)
+    model = policy_for_run(run, actions, frame)
     load_weights(
         model, checkpoint_from_bytes(payload)[0], f"run {run.run_id} checkpoint {meta.get('version', checkpoint)}"
     )
     model.to(device).eval()
     return model, meta
+
+
+def load_teacher(runs: RunStore, run: RunConfig, actions: ActionSpace) -> PolicyNetwork:
+    """A distilling run's teacher (its stored copy, ``model_store.runs.TEACHER_FILE``), ready to act on state
+    vectors; StoreKeyError if the copy is missing, CheckpointError if its weights do not fit."""
+    from model_store.runs import TEACHER_FILE  # the store's layout, imported where it is used (no cycle at import)
+
+    model = build_state_policy(STATE_SIZE, action_space_spec(actions), run.policy)
+    payload = runs.read_file(run.run_id, TEACHER_FILE)
+    load_weights(model, checkpoint_from_bytes(payload)[0], f"run {run.run_id}'s teacher ({run.distill.teacher})")
+    return model.eval()
 
 
 def _safe_load(data: bytes) -> Any:

@@ -90,6 +90,7 @@ from deploy.deepracer_graph import (
     layout_of,
     simapp_weights,
 )
+from deploy.export import camera_network
 from model_store import RunStore
 
 CAR_MODEL_PATH = "agent/model.pb"
@@ -124,6 +125,7 @@ def _load(runs: RunStore, run_id: str, checkpoint: str | int) -> tuple[ActorCrit
     """The checkpoint's network (checked exportable), its metadata and the run's action space."""
     actions = ActionSpace.model_validate_json(runs.read_file(run_id, "model_metadata.json"))
     model, meta = load_policy(runs, run_id, actions, checkpoint, frame=FRAME_SHAPE)
+    model = camera_network(model, run_id)
     layout_of(model)  # refuses, in one line, what DeepRacer's networks cannot hold
     return model, meta, actions
 

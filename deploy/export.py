@@ -19,7 +19,8 @@ from pathlib import Path
 import torch
 
 from common.action_space import ActionSpace
-from common.policy import ActorCritic
+from common.errors import UserError
+from common.policy import ActorCritic, PolicyNetwork
 from common.sensors import LIDAR, SECTOR_LIDAR, STEREO_CAMERAS, ObsSpec
 from common.weights import load_policy
 from deploy.car.model_file import OBS_HEIGHT, OBS_WIDTH, stamp
@@ -40,6 +41,17 @@ class _Exported(torch.nn.Module):
         return self.model.greedy(params), value
 
 
+def camera_network(model: PolicyNetwork, run_id: str) -> ActorCritic:
+    """``model`` if it is a camera network (DeepRacer's, which a car can run); a privileged teacher's network acts on
+    the car's exact state on the track, which no car has: UserError naming the run."""
+    if isinstance(model, ActorCritic):
+        return model
+    raise UserError(
+        f"run {run_id!r} is a privileged teacher (racer train --teacher): it acts on the car's state, which a car "
+        "does not have; export its student run"
+    )
+
+
 def export_onnx(runs: RunStore, run_id: str, checkpoint: str | int, out: str | Path) -> dict:
     """Write ``out`` (ONNX) and ``model_metadata.json`` beside it; return what was written."""
     out = Path(out)
@@ -47,6 +59,7 @@ def export_onnx(runs: RunStore, run_id: str, checkpoint: str | int, out: str | P
     metadata = runs.read_file(run_id, "model_metadata.json")
     actions = ActionSpace.model_validate_json(metadata)
     model, meta = load_policy(runs, run, actions, checkpoint)
+    model = camera_network(model, run_id)
     discrete = model.action_kind == "discrete"
     outputs = ["action_probs" if discrete else "action_mean", "value"]
     spec = model.spec

@@ -56,6 +56,13 @@ EVALUATIONS_DIR = "evaluations"
 _EVAL_NAME = re.compile(r"^(\d{9})\.json$")
 
 
+TEACHER_FILE = "teacher/model.pt"
+"""A distilling run's copy of its teacher's checkpoint (``RunConfig.distill``), written with the run's files: the run
+keeps both policies, and its workers never read another run."""
+TEACHER_META_FILE = "teacher/checkpoint.json"
+"""That checkpoint's metadata as the teacher run stored it, with ``run_id`` and ``version`` naming its source."""
+
+
 def evaluation_name(version: int) -> str:
     """Run file name of checkpoint ``version``'s evaluation: ``evaluations/{version:09d}.json``."""
     return f"{EVALUATIONS_DIR}/{_check_version(version):09d}.json"

@@ -21,7 +21,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from common.policy import ActorCritic
+from common.policy import PolicyNetwork
 
 log = logging.getLogger("racer.worker")
 
@@ -39,13 +39,14 @@ class Actor(Protocol):
 class OnnxPolicy:
     """``model``'s forward pass in a one-thread ONNX Runtime session; ``act_numpy`` as ``ActorCritic.act_numpy``."""
 
-    def __init__(self, model: ActorCritic) -> None:
+    def __init__(self, model: PolicyNetwork) -> None:
         import onnxruntime as ort  # the worker only: the trainer and the launcher never load it
 
         self.model = model
         self.lidar = bool(model.lidar_size)
+        self.dtype = np.float32 if model.obs_dtype == torch.float32 else np.uint8
         inputs = ["obs", "lidar"] if self.lidar else ["obs"]
-        example: tuple[torch.Tensor, ...] = (torch.zeros((1, *model.obs_shape), dtype=torch.uint8),)
+        example: tuple[torch.Tensor, ...] = (torch.zeros((1, *model.obs_shape), dtype=model.obs_dtype),)
         if self.lidar:
             example += (torch.zeros((1, model.lidar_size), dtype=torch.float32),)
         buffer = io.BytesIO()
@@ -73,18 +74,18 @@ class OnnxPolicy:
         self, obs: np.ndarray, deterministic: bool = False, lidar: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(int64 (B,) or float32 (B, d) actions, float32 log-probs, float32 values), as ``ActorCritic.act_numpy``."""
-        if obs.ndim != 4:
-            raise ValueError(f"act_numpy takes a batch (B, H, W, C), got shape {obs.shape}")
+        if obs.ndim != len(self.model.obs_shape) + 1:
+            raise ValueError(f"act_numpy takes a batch (B, *{self.model.obs_shape}), got shape {obs.shape}")
         if (lidar is not None) != self.lidar:
             raise ValueError(f"this network {'needs a' if self.lidar else 'takes no'} LiDAR batch")
-        feed = {"obs": np.ascontiguousarray(obs, np.uint8)}
+        feed = {"obs": np.ascontiguousarray(obs, self.dtype)}
         if lidar is not None:
             feed["lidar"] = np.ascontiguousarray(lidar, np.float32)
         params, value = self.session.run(None, feed)
         return self.model.act_numpy_from(params, value, deterministic)
 
 
-def acting_copy(model: ActorCritic) -> Actor:
+def acting_copy(model: PolicyNetwork) -> Actor:
     """An :class:`OnnxPolicy` of ``model``'s current weights, or ``model`` itself where one cannot be built."""
     try:
         return OnnxPolicy(model)

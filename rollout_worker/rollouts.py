@@ -13,11 +13,13 @@ import numpy as np
 
 from common.config import EnvConfig, RunConfig
 from common.framestack import FrameStack
-from common.policy import ActorCritic, action_space_spec, build_policy
+from common.policy import PolicyNetwork, policy_for_run
+from common.privileged import state_vector
 from common.protocol import EpisodeSummary, Segment
 from common.sensors import ObsSpec, camera_frame_size, observation_spec, split_observation
 from common.simtrace import SimTraceRecorder, merged_csv
 from rollout_worker.onnx_policy import Actor
+from rollout_worker.teacher import Teacher
 from rollout_worker.watch import WatchPublisher
 from sim.env import RacerEnv
 
@@ -31,6 +33,8 @@ class _Rollout:
     obs: list = field(default_factory=list)
     lidar: list = field(default_factory=list)
     """The LiDAR part of each o_t (only with a LiDAR sensor)."""
+    teacher: list = field(default_factory=list)
+    """The teacher's action distribution at each o_t (only in a distilling run)."""
     actions: list = field(default_factory=list)
     rewards: list = field(default_factory=list)
     terminated: list = field(default_factory=list)
@@ -52,7 +56,8 @@ class _Env:
     seed: int
     segment_worker_id: str
     """The worker id its segments carry."""
-    stack: FrameStack
+    stack: FrameStack | None
+    """The camera frame stack; None for state vectors (a teacher run), which are not stacked."""
     simtrace: SimTraceRecorder = field(default_factory=SimTraceRecorder)
     """DeepRacer sim-trace rows of the current iteration."""
     episode: int = 0
@@ -62,14 +67,24 @@ class _Env:
     """The stacked camera observation the next action is chosen from."""
     lidar: np.ndarray | None = None
     """Its LiDAR vector (None without a LiDAR sensor)."""
+    labelled: bool = False
+    """A distilling run's env: its steps carry the teacher's action distribution."""
+    state: np.ndarray | None = None
+    """The car's privileged state at that observation (only in a distilling run: the teacher acts on it)."""
     watch: WatchPublisher | None = None
     """What ``racer view`` shows of this env (its pose and camera), published only while a page watches."""
 
-    def observe(self, observation: np.ndarray | dict, first: bool = False) -> None:
+    def observe(self, observation: np.ndarray | dict, info: dict, first: bool = False) -> None:
         """Take an env observation apart: its camera frame onto the stack (``obs``), its LiDAR vector (not stacked,
-        as in DeepRacer) into ``lidar``."""
+        as in DeepRacer) into ``lidar``; a teacher run's state vector as it is. In a distilling run, the car's
+        state from the step's ``info`` params into ``state``."""
+        if self.stack is None:
+            self.obs = observation
+            return
         camera, self.lidar = split_observation(observation)
         self.obs = self.stack.reset(camera) if first else self.stack.push(camera)
+        if self.labelled:
+            self.state = state_vector(info["params"])
 
 
 def segment_worker_ids(worker_id: str, envs: int) -> list[str]:
@@ -87,17 +102,32 @@ class Rollouts:
     (frame stacks, sim-trace rows, building the segments)."""
 
     def __init__(
-        self, run: RunConfig, config: EnvConfig, seeds: Sequence[int], segment_worker_ids: Sequence[str]
+        self,
+        run: RunConfig,
+        config: EnvConfig,
+        seeds: Sequence[int],
+        segment_worker_ids: Sequence[str],
+        teacher: Teacher | None = None,
     ) -> None:
         self.run = run
+        self.teacher = teacher
+        """A distilling run's teacher (``run.distill``): it labels every step and drives a share of them."""
+        if (teacher is None) != (run.distill is None):
+            raise ValueError(f"run {run.run_id!r} {'distills: it needs' if run.distill else 'has no'} a teacher")
+        state = config.observation == "state"
         self.envs: list[_Env] = [
-            _Env(RacerEnv(config=config), j, seed, wid, FrameStack(run.hyperparams.stack_size))
+            _Env(RacerEnv(config=config), j, seed, wid, None if state else FrameStack(run.hyperparams.stack_size))
             for j, (seed, wid) in enumerate(zip(seeds, segment_worker_ids, strict=True))
         ]
+        for e in self.envs:
+            e.labelled = teacher is not None
         env = self.envs[0].env
         self.actions = env.actions
         self.obs_spec: ObsSpec = observation_spec(env.actions.sensor, run.hyperparams.stack_size)
-        self.obs_shape = self.obs_spec.camera_shape(camera_frame_size(env.observation_space))
+        self.frame = None if state else camera_frame_size(env.observation_space)
+        """The camera frames' (height, width); None for a teacher run's state vectors."""
+        self._mix = np.random.default_rng(list(seeds))
+        """Draws which steps the teacher drives (``DistillConfig.teacher_share_at``)."""
         self.env_steps = 0
         """Env steps of all envs so far."""
         self.time_s: dict[str, float] = {"collect": 0.0, "act": 0.0, "env": 0.0}
@@ -112,9 +142,9 @@ class Rollouts:
         """Episodes finished by all envs so far."""
         return sum(e.episode for e in self.envs)
 
-    def build_policy(self) -> ActorCritic:
+    def build_policy(self) -> PolicyNetwork:
         """A network for these envs' observations and actions (its weights to be loaded), in eval mode."""
-        model = build_policy(self.obs_shape, action_space_spec(self.actions), self.run.policy, self.actions.sensor)
+        model = policy_for_run(self.run, self.actions, *([self.frame] if self.frame else []))
         model.eval()
         return model
 
@@ -122,7 +152,7 @@ class Rollouts:
         """Start every env's first episode from its seed."""
         for e in self.envs:
             observation, info = e.env.reset(seed=e.seed)
-            e.observe(observation, first=True)
+            e.observe(observation, info, first=True)
             e.simtrace.reset(info, self._trace_episode(e))
             e.ep_reward = 0.0
 
@@ -137,12 +167,17 @@ class Rollouts:
             actions, logps, values = actor.act_numpy(
                 _batch([e.obs for e in envs]), lidar=_lidar_batch([e.lidar for e in envs])
             )
+            labels = None
+            if self.teacher is not None:
+                labels, actions = self._teach(actions, policy_version)
             clock["act"] += time.perf_counter() - t0
             truncated: list[tuple[_Rollout, int, np.ndarray, np.ndarray | None]] = []
-            for e, ro, action, logp, value in zip(envs, ros, actions, logps, values, strict=True):
+            for j, (e, ro, action, logp, value) in enumerate(zip(envs, ros, actions, logps, values, strict=True)):
                 ro.obs.append(e.obs)
                 if e.lidar is not None:
                     ro.lidar.append(e.lidar)
+                if labels is not None:
+                    ro.teacher.append(labels[j])
                 ro.actions.append(action)
                 ro.logp.append(logp)
                 ro.values.append(value)
@@ -160,14 +195,14 @@ class Rollouts:
                 if term or trunc:
                     # The final observation is pushed onto the stack only to bootstrap a truncated step's value.
                     camera, lidar = split_observation(observation)
-                    final = e.stack.push(camera)
+                    final = camera if e.stack is None else e.stack.push(camera)
                     if trunc:
                         truncated.append((ro, len(ro.next_values), final, lidar))
                     ro.next_values.append(0.0)  # a truncated step's value is set below
                     ro.episodes.append(self._summary(e, info))
                     self._new_episode(e)
                 else:
-                    e.observe(observation)
+                    e.observe(observation, info)
                     ro.next_values.append(None)  # V(o_{t+1}) is the next step's value
             if truncated:  # the envs whose episode hit its time limit this step, valued together
                 bootstrap = self._values(actor, [t[2] for t in truncated], [t[3] for t in truncated])
@@ -203,12 +238,25 @@ class Rollouts:
             "next_values": np.asarray(nxt, np.float32),
             "episode_id": np.asarray(ro.episode_id, np.int64),
         }
-        if self.obs_spec.lidar:
+        if ro.lidar:
             arrays["lidar"] = np.stack(ro.lidar)
             arrays["next_lidar"] = e.lidar[None]
+        if ro.teacher:
+            arrays["teacher"] = np.stack(ro.teacher)
         return Segment(
             self.run.run_id, e.segment_worker_id, policy_version, e.seed, arrays=arrays, episodes=ro.episodes
         )
+
+    def _teach(self, actions: np.ndarray, policy_version: int) -> tuple[np.ndarray, np.ndarray]:
+        """The teacher's labels of this step's states, and the actions the envs take: the teacher's own (drawn from
+        its distribution) on the run's share of them (``DistillConfig.teacher_share_at``), the student's elsewhere."""
+        labels, taught = self.teacher.act(np.stack([e.state for e in self.envs]))
+        share = self.run.distill.teacher_share_at(policy_version)
+        if share <= 0:
+            return labels, actions
+        mixed = self._mix.random(len(self.envs)) < share
+        mask = mixed.reshape(-1, *([1] * (actions.ndim - 1)))
+        return labels, np.where(mask, taught, actions).astype(actions.dtype)
 
     def _values(self, actor: Actor, obs: list[np.ndarray], lidar: list[np.ndarray | None]) -> list[float]:
         """V(o) of stacked camera observations and their LiDAR vectors, in one forward pass."""
@@ -229,7 +277,7 @@ class Rollouts:
         e.episode += 1
         e.ep_reward = 0.0
         observation, info = e.env.reset()
-        e.observe(observation, first=True)
+        e.observe(observation, info, first=True)
         e.simtrace.reset(info, self._trace_episode(e))
 
     def _trace_episode(self, e: _Env) -> int:

@@ -38,20 +38,22 @@ from pathlib import Path
 
 import torch
 
+from common.action_space import load_action_space
 from common.bus import Bus
 from common.config import ENV_SEED_STRIDE, MAX_ENVS_PER_WORKER, EnvConfig, RunConfig
 from common.defaults import DEFAULT_GIVE_UP_S
 from common.errors import OptionError
-from common.policy import ActorCritic
+from common.policy import PolicyNetwork
 from common.protocol import Heartbeat, PolicyVersion, ProtocolError, Segment, encode_segment
 from common.redis_util import redact
 from common.retry import Outage, redis_transient
-from common.weights import acting_from_bytes, checkpoint_from_bytes
+from common.weights import acting_from_bytes, checkpoint_from_bytes, load_teacher
 from model_store import RunStore, StoreError, is_transient, open_store
 from model_store.localize import localize_env
 from model_store.runs import simtrace_key
 from rollout_worker.onnx_policy import Actor, acting_copy
 from rollout_worker.rollouts import Rollouts, segment_worker_ids
+from rollout_worker.teacher import Teacher
 from rollout_worker.watch import WatchPublisher
 
 log = logging.getLogger("racer.worker")
@@ -126,9 +128,14 @@ class RolloutWorker:
         config = self.store_outage.call("read the run's files", self._env_config)
         k, n = self.opts.worker_index, self.opts.envs_per_worker
         seeds = [self.run.seed + ENV_SEED_STRIDE * k + j for j in range(n)]
-        self.rollouts = Rollouts(self.run, config, seeds, segment_worker_ids(self.worker_id, n))
+        teacher = None
+        if self.run.distill is not None:
+            actions = load_action_space(config.action_space)
+            model = self.store_outage.call("read the teacher", partial(load_teacher, self.runs, self.run, actions))
+            teacher = Teacher(model, seeds[0])
+        self.rollouts = Rollouts(self.run, config, seeds, segment_worker_ids(self.worker_id, n), teacher)
         log.info("worker %s: %d env(s) on %s, seeds %s", self.worker_id, n, self.rollouts.track_name, seeds)
-        self.model: ActorCritic = self.rollouts.build_policy()
+        self.model: PolicyNetwork = self.rollouts.build_policy()
         self._load(first)
         for e in self.rollouts.envs:  # racer view: nearly free unless a page watches (rollout_worker/watch.py)
             e.watch = WatchPublisher(self.bus, e.segment_worker_id, self.opts.worker_index, self.rollouts.track_name)

@@ -28,6 +28,7 @@ from common.action_space import (
 from common.config import FRAME_HEIGHT, FRAME_WIDTH, EnvConfig, WorldCondition
 from common.defaults import DEFAULT_TRACK
 from common.errors import UserError
+from common.privileged import STATE_SIZE, state_vector
 from common.sensors import CAMERA_KEY, LIDAR_KEY, ObsSpec, lidar_from_ranges, observation_spec
 from common.simtrace import OBSTACLE_COLUMN
 from sim.augment import augment_frame, is_identity, needs_color
@@ -125,6 +126,8 @@ class RacerEnv(gym.Env):
         self._slot_geoms = object_slot_geoms(self.model) if slots and (self.lidar or mujoco_cam) else None
 
     def _observation_space(self) -> gym.spaces.Space:
+        if self.config.observation == "state":
+            return gym.spaces.Box(-np.inf, np.inf, (STATE_SIZE,), np.float32)
         camera = gym.spaces.Box(0, 255, self.obs_spec.frame_shape((FRAME_HEIGHT, FRAME_WIDTH)), np.uint8)
         lidar = self.obs_spec.lidar
         if lidar is None:
@@ -308,7 +311,10 @@ class RacerEnv(gym.Env):
 
     def observe(self) -> np.ndarray | dict[str, np.ndarray]:
         """The observation at the car's pose now: the camera frame, and the LiDAR vector where the sensors have one
-        (scanned again when due, else the last scan)."""
+        (scanned again when due, else the last scan); with ``observation`` ``state``, the car's privileged state
+        instead, and nothing is rendered."""
+        if self.config.observation == "state":
+            return state_vector(self._last.params)
         pose = self.physics.pose
         frame = self.camera_frame(pose)
         if self.lidar is None:

@@ -144,7 +144,7 @@ def test_the_intake_keeps_a_fresh_segment_and_counts_each_drop_by_reason() -> No
     intake = SegmentIntake(
         SimpleNamespace(),
         "run-a",
-        observation_spec(["FRONT_FACING_CAMERA"]),
+        None,
         obs_shape=(120, 160, 1),
         n_actions=10,
         stats=Stats(),

@@ -14,7 +14,7 @@ from common.protocol import PolicyVersion
 from common.retry import Outage
 from common.weights import acting_to_bytes, checkpoint_to_bytes, state_dict_to_bytes
 from model_store import RunStore, StoreKeyError
-from model_store.runs import METRICS_FILE, checkpoint_key
+from model_store.runs import METRICS_FILE, TEACHER_FILE, TEACHER_META_FILE, checkpoint_key
 
 log = logging.getLogger("racer.trainer")
 
@@ -30,13 +30,25 @@ class Checkpoints:
         self.run_id = run.run_id
 
     def write_run_files(self, files: dict[str, bytes]) -> None:
-        """A new run's files (and their DeepRacer copies) and its ``config.json``."""
+        """A new run's files (and their DeepRacer copies), a distilling run's copy of its teacher, and its
+        ``config.json`` last (a run is whole once it has one)."""
         for name, data in files.items():
             self.runs.write_file(self.run_id, name, data)
             mirror = MIRRORS.get(name)
             if mirror:
                 self.runs.write_file(self.run_id, mirror + name, data)
+        if self.run.distill is not None:
+            self.copy_teacher()
         self.runs.write_config(self.run)
+
+    def copy_teacher(self) -> None:
+        """Copy the checkpoint ``run.distill.teacher`` names (``RUN:VERSION``) into this run (``TEACHER_FILE``, its
+        metadata beside it): the run keeps both policies, and its workers read the copy."""
+        source, _, version = self.run.distill.teacher.partition(":")
+        payload, meta = self.runs.load_checkpoint(source, int(version))
+        self.runs.write_file(self.run_id, TEACHER_FILE, payload)
+        meta = {**meta, "run_id": source, "version": int(version)}
+        self.runs.write_file(self.run_id, TEACHER_META_FILE, json.dumps(meta, indent=2, allow_nan=False))
 
     def save(self, version: int, model: dict, optimizer: dict, meta: dict) -> dict:
         """Save ``version`` (``model`` and ``optimizer`` state dicts, ``meta`` into its metadata with the run's

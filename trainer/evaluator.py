@@ -30,7 +30,7 @@ from common.conditions import Condition, apply_condition
 from common.config import EnvConfig, RunConfig
 from common.defaults import CHECK_EPISODES, DEFAULT_GIVE_UP_S, EVAL_ACTION_NOISE
 from common.framestack import FrameStack
-from common.policy import ActorCritic
+from common.policy import PolicyNetwork
 from common.protocol import EvaluationSummary, PolicyVersion, ProtocolError
 from common.redis_util import redact
 from common.retry import Outage, redis_transient
@@ -114,7 +114,7 @@ def summarize(trials: list[Trial]) -> dict:
 
 def run_trial(
     env: RacerEnv,
-    model: ActorCritic,
+    model: PolicyNetwork,
     stack: int,
     start: int,
     reverse: bool,
@@ -237,7 +237,7 @@ def _start(
     )
 
 
-def drive_lockstep(model: ActorCritic, trials: list[_Driving], deterministic: bool) -> None:
+def drive_lockstep(model: PolicyNetwork, trials: list[_Driving], deterministic: bool) -> None:
     """Drive every trial to its end, all trials' frames through the network as one batch per step.
 
     One batch of K frames costs far less than K single frames (the dense layer's 23 MB of weights are read once),
@@ -280,7 +280,11 @@ def evaluation_env_config(env_cfg: EnvConfig, settings: EvalSettings, track: str
 
 
 def evaluate(
-    model: ActorCritic, env_cfg: EnvConfig, stack: int, settings: EvalSettings, recorder: SimTraceRecorder | None = None
+    model: PolicyNetwork,
+    env_cfg: EnvConfig,
+    stack: int,
+    settings: EvalSettings,
+    recorder: SimTraceRecorder | None = None,
 ) -> list[Trial]:
     """All trials of a robust evaluation: every track × direction × spread start, driven in lockstep per track."""
     model.eval()

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 from common.bus import Bus
 from common.protocol import EpisodeSummary, ProtocolError, Segment, decode_segment
-from common.sensors import ObsSpec
+from common.sensors import LidarSpec
 
 log = logging.getLogger("racer.trainer")
 
@@ -73,14 +73,17 @@ class SegmentIntake:
         self,
         bus: Bus,
         run_id: str,
-        obs_spec: ObsSpec,
+        lidar: LidarSpec | None,
         obs_shape: tuple[int, ...],
         *,
         n_actions: int | None,
         stats: Stats,
+        label_width: int | None = None,
     ) -> None:
         self.bus, self.run_id = bus, run_id
-        self.obs_shape, self.n_actions, self.lidar = obs_shape, n_actions, obs_spec.lidar
+        self.obs_shape, self.n_actions, self.lidar = obs_shape, n_actions, lidar
+        self.label_width = label_width
+        """The width of a distilling run's teacher labels (``decode_segment``'s ``teacher_width``); None otherwise."""
         self.stats = stats
         self.buffer: list[Segment] = []
         self.last_id = "0-0"
@@ -103,7 +106,9 @@ class SegmentIntake:
     def accept(self, fields: dict, version: int, floor: int, max_lag: int) -> int:
         """Decode one stream entry and keep it (1) or count why it was dropped (0)."""
         try:
-            seg = decode_segment(fields, self.run_id, self.obs_shape, self.n_actions, lidar=self.lidar)
+            seg = decode_segment(
+                fields, self.run_id, self.obs_shape, self.n_actions, lidar=self.lidar, teacher_width=self.label_width
+            )
         except ProtocolError as exc:
             self.stats.drop(exc.reason)
             log.warning("dropped a segment: %s", exc)

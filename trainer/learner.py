@@ -11,12 +11,13 @@ import logging
 import torch
 
 from common.action_space import ActionSpace
-from common.config import FRAME_HEIGHT, FRAME_WIDTH, PretrainedError, RunConfig
+from common.config import PretrainedError, RunConfig
 from common.deadline import Deadline
-from common.policy import ActorCritic, Precision, action_space_spec, build_policy
+from common.policy import PolicyNetwork, Precision, label_width, policy_for_run
 from common.protocol import Segment
 from common.sensors import ObsSpec, observation_spec
 from common.weights import checkpoint_from_bytes, load_weights, misfit, state_dict_from_bytes
+from trainer.distill import distill
 from trainer.ppo import PPOBatch, StepArgs, compute_gae, cooldown_factor, scheduled, update
 from trainer.precision import fastest, grad_scaler, precision_candidates, time_precisions
 
@@ -28,15 +29,20 @@ class Learner:
 
     def __init__(self, run: RunConfig, actions: ActionSpace, device: torch.device, precision: str) -> None:
         self.run, self.hp, self.device = run, run.hyperparams, device
-        sensors = actions.sensor
-        self.obs_spec: ObsSpec = observation_spec(sensors, self.hp.stack_size)
+        self.obs_spec: ObsSpec = observation_spec(actions.sensor, self.hp.stack_size)
         """The sensors' observation: the camera channels segments carry, and their LiDAR (if any)."""
-        self.obs_shape = self.obs_spec.camera_shape((FRAME_HEIGHT, FRAME_WIDTH))
         self.n_actions = actions.n if actions.discrete else None
         torch.manual_seed(run.seed)
         # Initialized on the CPU, then moved: the same initial weights on every device.
-        spec = action_space_spec(actions)
-        self.model: ActorCritic = build_policy(self.obs_shape, spec, run.policy, sensors).to(device)
+        self.model: PolicyNetwork = policy_for_run(run, actions).to(device)
+        self.obs_shape = self.model.obs_shape
+        """One observation as segments carry it: stacked camera frames (H, W, C), or a teacher's state (D,)."""
+        self.lidar = self.obs_spec.lidar if run.env.observation == "sensors" else None
+        """The LiDAR segments carry: the sensors' (None for a teacher's state vectors)."""
+        self.label_width = (
+            label_width(self.model.action_kind, self.model.action_dim) if run.distill is not None else None
+        )
+        """The width of the teacher's label rows segments carry in a distilling run; None otherwise."""
         self.precision_choices = precision_candidates(precision, device)
         """Precisions still in the running: more than one until the first update times them (``auto`` on a CPU)."""
         self.precision: Precision = self.precision_choices[0]
@@ -118,6 +124,36 @@ class Learner:
         self.model.eval()
         return result
 
+    def learn(self, batch: PPOBatch, lr: float, *, version: int, iteration: int) -> dict[str, float]:
+        """The update from policy ``version``: a distilling run's distillation while it distills
+        (``DistillConfig.distilling``), else PPO's with the entropy coefficient of ``iteration``."""
+        distill = self.run.distill
+        if distill is not None and distill.distilling(version):
+            return self.distill(batch, lr)
+        return self.update(batch, lr, self.entropy_coef(iteration))
+
+    def distill(self, batch: PPOBatch, lr: float) -> dict[str, float]:
+        """One distillation update (``trainer.distill.distill``: KL(teacher ‖ student) and the value loss) over
+        ``batch``, whose rows carry the teacher's labels, at ``lr``; returns its losses and figures."""
+        hp = self.hp
+        self.set_lr(lr)
+        self._choose_precision(batch, hp.beta_entropy)
+        self.model.train()
+        result = distill(
+            self.model,
+            self.optimizer,
+            batch,
+            epochs=hp.num_epochs,
+            minibatch_size=hp.batch_size,
+            value_coef=hp.value_loss_coef,
+            loss_type=hp.value_loss_kind,
+            max_grad_norm=hp.max_grad_norm,
+            generator=self.generator,
+            scaler=self.scaler,
+        )
+        self.model.eval()
+        return result
+
     def _choose_precision(self, batch: PPOBatch, beta_entropy: float) -> None:
         """``auto`` on a CPU with native bf16: before the first update, time both precisions on a copy of the
         network and the batch's first minibatch, and train in the faster from then on."""
@@ -150,7 +186,7 @@ def make_batch(segments: list[Segment], gamma: float, lam: float) -> PPOBatch:
     """GAE per segment (bootstrapping from the values the workers sent), then one flat batch on the CPU (with the
     segments' LiDAR vectors when they carry them: all or none do, ``decode_segment`` checks them against the run's
     sensors); ``PPOBatch.to`` moves it to the trainer's device."""
-    parts = {k: [] for k in ("obs", "actions", "logp", "adv", "ret", "values", "lidar")}
+    parts = {k: [] for k in ("obs", "actions", "logp", "adv", "ret", "values", "lidar", "teacher")}
     for seg in segments:
         a = seg.arrays
         # Arrays decoded from Redis are read-only views of the message bytes: torch wants its own copy.
@@ -165,8 +201,9 @@ def make_batch(segments: list[Segment], gamma: float, lam: float) -> PPOBatch:
             lam=lam,
         )
         parts["obs"].append(torch.from_numpy(a["obs"].copy()))
-        if "lidar" in a:
-            parts["lidar"].append(torch.from_numpy(a["lidar"].copy()))
+        for optional in ("lidar", "teacher"):
+            if optional in a:
+                parts[optional].append(torch.from_numpy(a[optional].copy()))
         parts["actions"].append(torch.from_numpy(a["actions"].copy()))
         parts["logp"].append(torch.from_numpy(a["logp"].copy()))
         parts["values"].append(t["values"])
@@ -181,4 +218,5 @@ def make_batch(segments: list[Segment], gamma: float, lam: float) -> PPOBatch:
         returns=cat["ret"],
         old_values=cat["values"],
         lidar=cat.get("lidar"),
+        teacher=cat.get("teacher"),
     )

@@ -164,6 +164,9 @@ class PPOBatch:
     """float32 (N,) V(o_t) under the behaviour policy."""
     lidar: torch.Tensor | None = None
     """float32 (N, L) LiDAR part of o_t, for a network with a LiDAR; None for a camera-only network."""
+    teacher: torch.Tensor | None = None
+    """float32 (N, P) the teacher's action distribution at each step of a distilling run (``trainer.distill``:
+    logits, or the Gaussian's means then standard deviations); None otherwise."""
 
     def __post_init__(self) -> None:
         n = len(self)

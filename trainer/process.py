@@ -28,7 +28,7 @@ from common.bus import Bus
 from common.config import RunConfig
 from common.deadline import Deadline
 from common.defaults import DEFAULT_GIVE_UP_S, DEFAULT_TRAINER_THREADS
-from common.policy import ActorCritic
+from common.policy import PolicyNetwork
 from common.protocol import EndReason
 from common.redis_util import redact
 from common.retry import Outage, redis_transient
@@ -112,7 +112,7 @@ class Trainer:
         return self.collapse_guard.stability
 
     @property
-    def model(self) -> ActorCritic:
+    def model(self) -> PolicyNetwork:
         """The network (``Learner.model``)."""
         return self.learner.model
 
@@ -154,8 +154,7 @@ class Trainer:
         """The learner and the intake for the run's sensors and action space (its stored model_metadata.json)."""
         actions = action_space_from_json(self.runs.read_file(self.run.run_id, "model_metadata.json"))
         self.learner = Learner(self.run, actions, self.device, self.opts.precision)
-        spec, shape, n = self.learner.obs_spec, self.learner.obs_shape, self.learner.n_actions
-        self.intake = SegmentIntake(self.bus, self.run.run_id, spec, shape, n_actions=n, stats=self.stats)
+        self.intake = segment_intake(self.bus, self.run.run_id, self.learner, self.stats)
 
     def _resume(self) -> None:
         payload, optimizer, meta = self.checkpoints.newest()
@@ -220,12 +219,12 @@ class Trainer:
                 if self.hp.collapse_guard:
                     self.guard()
                 last_status = time.monotonic()
-            if self.stats.iteration >= self.hp.term_cond_max_episodes:
+            if self.stats.iteration >= max_updates(self.run):
                 # As the simapp's training_worker.py: term_cond_max_episodes bounds the policy updates (its loop
                 # counts one per train() call); term_cond_avg_score stops nothing there, so it stops nothing here.
                 break
         self.redis_outage.call("write the status", self.write_status)
-        return end_reason(self.stats.iteration, self.hp.term_cond_max_episodes, self.opts.deadline)
+        return end_reason(self.stats.iteration, max_updates(self.run), self.opts.deadline)
 
     def housekeeping(self) -> None:
         """Once a second: the status for ``racer train``, and the policy key again if Redis lost it (a restarted
@@ -251,7 +250,7 @@ class Trainer:
         batch = make_batch(self.intake.buffer, self.hp.discount_factor, self.hp.gae_lambda).to(self.device)
         segments = self.intake.take()
         lr = self.learning_rate()
-        result = self.learner.update(batch, lr, self.learner.entropy_coef(self.stats.iteration))
+        result = self.learner.learn(batch, lr, version=self.version, iteration=self.stats.iteration)
         self.version += 1
         self.stats.iteration += 1
         self._checkpoint()
@@ -325,6 +324,29 @@ class Trainer:
         for _ in range(bad):
             self.stats.drop("bad_heartbeat")
         return beats
+
+
+def max_updates(run: RunConfig) -> int:
+    """The policy updates a run ends at: ``term_cond_max_episodes``, or sooner a distilling run without fine-tuning
+    once it has distilled (``DistillConfig.fine_tune``)."""
+    limit = run.hyperparams.term_cond_max_episodes
+    if run.distill is not None and not run.distill.fine_tune:
+        return min(limit, run.distill.updates)
+    return limit
+
+
+def segment_intake(bus: Bus, run_id: str, learner: Learner, stats: Stats) -> SegmentIntake:
+    """The intake of the segments ``learner`` trains on: its observations (camera frames and LiDAR, or a teacher's
+    state vectors), its actions and, in a distilling run, the teacher's labels."""
+    return SegmentIntake(
+        bus,
+        run_id,
+        learner.lidar,
+        learner.obs_shape,
+        n_actions=learner.n_actions,
+        stats=stats,
+        label_width=learner.label_width,
+    )
 
 
 def run_trainer(run: RunConfig, opts: TrainerOptions, stop: threading.Event | None = None) -> dict:

@@ -118,6 +118,9 @@ class BenchRaceSettings:
     actions: RaceActions | None = None
     """A user's action space (``--action-space F``, read by :func:`load_race_actions`); None: :data:`RACE_ACTIONS`.
     The limit, the reward example's ``MAX_SPEED`` and the seeds all use it."""
+    teacher: bool = False
+    """``--teacher``: each seed also trains with a privileged teacher (``racer train --teacher``: the teacher for a
+    third of the budget, then its student), in the same invocation after the plain run of that seed."""
 
     def race_actions(self) -> RaceActions:
         """The action space the seeds train with and the limit is computed for."""
@@ -333,22 +336,63 @@ def train_from_scratch(
     oa`` and ``bench transfer`` share it."""
     with EmbeddedRedis() as server, tempfile.TemporaryDirectory(prefix="racer-bench-") as tmp:
         store = store_dir or Path(tmp, "store")
-        opts = RunOptions(
-            workers=workers,
-            redis_url=server.url,
-            store=str(store),
-            time_limit_s=minutes * 60.0,
-            eval_every=1,
-            eval_episodes=eval_episodes,
-            eval_both_directions=False,
-        )
+        opts = bench_options(server.url, store, workers=workers, minutes=minutes, eval_episodes=eval_episodes)
         t0 = time.time()
         run_train(run, opts, files, Console(file=io.StringIO()))
         runs = RunStore(LocalStore(store))
-        curve = read_curve(run.run_id, runs, t0)
-        rows = runs.read_metrics(run.run_id, missing_ok=True)
+        return read_curve(run.run_id, runs, t0), guard_counts(runs, run.run_id)
+
+
+def bench_options(redis_url: str, store: Path, *, workers: int, minutes: float, eval_episodes: int) -> RunOptions:
+    """A bench run's options: ``workers``, a time limit of ``minutes``, every checkpoint evaluated from
+    ``eval_episodes`` starts in the track's direction."""
+    return RunOptions(
+        workers=workers,
+        redis_url=redis_url,
+        store=str(store),
+        time_limit_s=minutes * 60.0,
+        eval_every=1,
+        eval_episodes=eval_episodes,
+        eval_both_directions=False,
+    )
+
+
+def guard_counts(runs: RunStore, run_id: str) -> dict[str, int]:
+    """The collapse guard's ``rollbacks`` and ``slow_rollbacks`` of a stored run (its last metrics row)."""
+    rows = runs.read_metrics(run_id, missing_ok=True)
     last = rows[-1] if rows else {}
-    return curve, {key: int(last.get(key, 0)) for key in ("rollbacks", "slow_rollbacks")}
+    return {key: int(last.get(key, 0)) for key in ("rollbacks", "slow_rollbacks")}
+
+
+def train_teacher_student(
+    run: RunConfig,
+    files: dict[str, bytes],
+    *,
+    workers: int,
+    minutes: float,
+    eval_episodes: int,
+    read_curve: Callable[[str, RunStore, float], list[dict]],
+) -> tuple[list[dict], list[dict], dict[str, int]]:
+    """``racer train --teacher`` for ``minutes`` in all (the teacher a third of them: ``racer.teacher``), as
+    :func:`train_from_scratch` trains; the student's curve and the teacher's, both timed from the teacher's start,
+    and the student's guard counts."""
+    from racer.teacher import TEACHER_SUFFIX, split_time, train_with_teacher
+
+    with EmbeddedRedis() as server, tempfile.TemporaryDirectory(prefix="racer-bench-") as tmp:
+        store = Path(tmp, "store")
+        opts = bench_options(server.url, store, workers=workers, minutes=minutes, eval_episodes=eval_episodes)
+        runs = RunStore(LocalStore(store))
+        t0 = time.time()
+        train_with_teacher(
+            runs,
+            opts.model_copy(update={"run_id": run.run_id}),
+            (run, files),
+            distill={},
+            teacher_time_s=split_time(opts, None),
+            console=Console(file=io.StringIO()),
+        )
+        teacher = read_curve(run.run_id + TEACHER_SUFFIX, runs, t0)
+        return read_curve(run.run_id, runs, t0), teacher, guard_counts(runs, run.run_id)
 
 
 def seed_run(settings: BenchRaceSettings, seed: int, constants: dict[str, float]) -> tuple[RunConfig, dict[str, bytes]]:
@@ -369,21 +413,25 @@ def seed_run(settings: BenchRaceSettings, seed: int, constants: dict[str, float]
     return run.model_copy(update={"env": run.env.model_copy(update={"car": load_car(settings.car)})}), files
 
 
-def run_seed(settings: BenchRaceSettings, seed: int, limit_s: float, constants: dict[str, float]) -> dict[str, Any]:
-    """One seed: ``racer train`` for the budget, then its figures."""
+def run_seed(
+    settings: BenchRaceSettings, seed: int, limit_s: float, constants: dict[str, float], *, teacher: bool = False
+) -> dict[str, Any]:
+    """One seed: ``racer train`` for the budget (with ``teacher``, ``racer train --teacher``), then its figures;
+    with a teacher also the teacher's own (``teacher``) and the student's gap to it (``student_gap``: the student's
+    best robust lap over the teacher's)."""
     run, files = seed_run(settings, seed, constants)
     actions = settings.race_actions()
     read_curve = partial(race_curve, speed_bin=SPEED_BIN_MPS) if is_continuous(actions) else race_curve
-    curve, guard = train_from_scratch(
-        run,
-        files,
-        workers=settings.workers,
-        minutes=settings.minutes,
-        eval_episodes=settings.eval_starts,
-        read_curve=read_curve,
-    )
-    figures = seed_figures(curve, limit_s, settings.minutes * 60.0)
-    figures.update(seed=seed, **guard, curve=curve)
+    budget = {"workers": settings.workers, "minutes": settings.minutes, "eval_episodes": settings.eval_starts}
+    if not teacher:
+        curve, guard = train_from_scratch(run, files, **budget, read_curve=read_curve)
+        return {**seed_figures(curve, limit_s, settings.minutes * 60.0), "seed": seed, **guard, "curve": curve}
+    curve, teacher_curve, guard = train_teacher_student(run, files, **budget, read_curve=read_curve)
+    figures = {**seed_figures(curve, limit_s, settings.minutes * 60.0), "seed": seed, **guard, "curve": curve}
+    own = seed_figures(teacher_curve, limit_s)
+    student, best = figures["best_robust_lap_s"], own["best_robust_lap_s"]
+    figures["teacher"] = {**own, "curve": teacher_curve}
+    figures["student_gap"] = None if student is None or best is None else student / best
     return figures
 
 
@@ -424,29 +472,16 @@ def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> 
     if progress:
         progress.print(f"limit on {settings.track} for car {settings.car}: {limit_s:.2f} s", highlight=False)
         progress.print(f"reward example's constants for this car: {constants}", highlight=False)
-    seeds = []
+    plain, taught = [], []
     for seed in settings.seeds:
-        figures = run_seed(settings, seed, limit_s, constants)
-        seeds.append(figures)
+        plain.append(run_seed(settings, seed, limit_s, constants))
         if progress:
-            progress.print(
-                f"seed {seed}: robust after {seconds_text(figures['time_to_robust_s'])}, best robust lap "
-                f"{seconds_text(figures['best_robust_lap_s'])}, collapses {figures['collapses']}, "
-                f"final completion {figures['final_completion']:.2f}, "
-                f"late robust lap {seconds_text(figures['late_robust_lap_s'])}, "
-                f"the best's steps at each commanded speed: {shares_text(figures['best_command_speeds'])}",
-                highlight=False,
-            )
-    keys = (
-        "time_to_robust_s",
-        "best_robust_lap_s",
-        "ratio_to_limit",
-        "final_completion",
-        "late_robust_lap_s",
-        "drift_after_best",
-    )
-    medians = {key: median_known([s[key] for s in seeds]) for key in keys}
-    return {
+            progress.print(f"seed {seed}: {seed_line(plain[-1])}", highlight=False)
+        if settings.teacher:
+            taught.append(run_seed(settings, seed, limit_s, constants, teacher=True))
+            if progress:
+                progress.print(f"seed {seed} with a teacher: {seed_line(taught[-1])}", highlight=False)
+    result = {
         "track": settings.track,
         "car": settings.car,
         "minutes": settings.minutes,
@@ -459,11 +494,60 @@ def bench_race(settings: BenchRaceSettings, progress: Console | None = None) -> 
         "limit_s": limit_s,
         "computed_limit_s": limit["lap_time_s"],
         "driven_limit_s": limit["driven_lap_time_s"],
+    }
+    if not settings.teacher:
+        return {**result, **seed_block(plain)}
+    return {**result, "plain": seed_block(plain), "teacher": teacher_block(taught)}
+
+
+SEED_MEDIANS = (
+    "time_to_robust_s",
+    "best_robust_lap_s",
+    "ratio_to_limit",
+    "final_completion",
+    "late_robust_lap_s",
+    "drift_after_best",
+)
+"""The per-seed figures a block gives the median of (over the seeds that reached each)."""
+
+
+def seed_line(figures: dict[str, Any]) -> str:
+    """One seed's figures for the console."""
+    line = (
+        f"robust after {seconds_text(figures['time_to_robust_s'])}, best robust lap "
+        f"{seconds_text(figures['best_robust_lap_s'])}, collapses {figures['collapses']}, "
+        f"final completion {figures['final_completion']:.2f}, "
+        f"late robust lap {seconds_text(figures['late_robust_lap_s'])}, "
+        f"the best's steps at each commanded speed: {shares_text(figures['best_command_speeds'])}"
+    )
+    if "teacher" in figures:
+        line += f"; the teacher's best robust lap {seconds_text(figures['teacher']['best_robust_lap_s'])}"
+    return line
+
+
+def seed_block(seeds: list[dict[str, Any]]) -> dict[str, Any]:
+    """The medians, sums and seeds of one kind of run (plain, or with a teacher); ``median_ratio_to_limit`` is
+    ``ratio_to_limit`` (already the median) under the name ``--teacher``'s comparison reads."""
+    medians = {key: median_known([s[key] for s in seeds]) for key in SEED_MEDIANS}
+    return {
         **medians,
+        "median_ratio_to_limit": medians["ratio_to_limit"],
+        "env_steps_to_robust": median_known([s["env_steps_to_robust"] for s in seeds]),
         "collapses": sum(s["collapses"] for s in seeds),
         "collapses_recovered": sum(s["collapses_recovered"] for s in seeds),
         "robust_seeds": sum(s["time_to_robust_s"] is not None for s in seeds),
         "seeds": seeds,
+    }
+
+
+def teacher_block(seeds: list[dict[str, Any]]) -> dict[str, Any]:
+    """``seed_block`` of the runs with a teacher, with the teachers' own median ratio to the limit and the
+    students' median gap to their teachers (the student's best robust lap over the teacher's: what the camera
+    does not see)."""
+    return {
+        **seed_block(seeds),
+        "teacher_ratio_to_limit": median_known([s["teacher"]["ratio_to_limit"] for s in seeds]),
+        "student_gap": median_known([s["student_gap"] for s in seeds]),
     }
 
 
@@ -477,13 +561,21 @@ def plot_race(result: dict[str, Any], out_png: str | Path) -> Path:
     from racer.plots import save_figure
 
     fig, (ax_lap, ax_done) = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
-    for i, s in enumerate(result["seeds"]):
-        # One colour a seed in both panels: a seed with no robust lap draws nothing in the upper one.
-        t = [p["time_s"] / 60 for p in s["curve"]]
-        ax_done.plot(t, [p["completion"] for p in s["curve"]], marker=".", color=f"C{i}", label=f"seed {s['seed']}")
-        robust = [(p["time_s"] / 60, p["mean_lap_s"]) for p in s["curve"] if p["completion"] >= 1.0]
-        if robust:
-            ax_lap.plot(*zip(*robust, strict=True), marker="o", color=f"C{i}", label=f"seed {s['seed']}")
+    # Plain runs solid; with --teacher, the students dashed in their seed's colour (their time counts the teacher's).
+    kinds = (
+        [("", "-", result["plain"]["seeds"]), (" teacher", "--", result["teacher"]["seeds"])]
+        if "plain" in result
+        else [("", "-", result["seeds"])]
+    )
+    for suffix, style, seeds in kinds:
+        for i, s in enumerate(seeds):
+            # One colour a seed in both panels: a seed with no robust lap draws nothing in the upper one.
+            label = f"seed {s['seed']}{suffix}"
+            t = [p["time_s"] / 60 for p in s["curve"]]
+            ax_done.plot(t, [p["completion"] for p in s["curve"]], ls=style, marker=".", color=f"C{i}", label=label)
+            robust = [(p["time_s"] / 60, p["mean_lap_s"]) for p in s["curve"] if p["completion"] >= 1.0]
+            if robust:
+                ax_lap.plot(*zip(*robust, strict=True), ls=style, marker="o", color=f"C{i}", label=label)
     ax_lap.axhline(result["limit_s"], color="black", ls="--", label=f"racer limit {result['limit_s']:.2f} s")
     ax_lap.set_ylabel("robust mean lap (s)")
     ax_lap.legend()
@@ -520,9 +612,11 @@ def command(
     files: RaceFiles,
     png: Path | None = None,
     progress: Console | None = None,
+    teacher: bool = False,
 ) -> Report:
-    """``racer bench race``: check the car, track and the user's files before any training, run the seeds, plot
-    them to ``png`` if given and compare the best robust lap with the limit."""
+    """``racer bench race``: check the car, track and the user's files before any training, run the seeds (with
+    ``teacher``, each also with a teacher: ``BenchRaceSettings.teacher``), plot them to ``png`` if given and
+    compare the best robust lap with the limit."""
     from common.hyperparams import HyperparametersError, load_hyperparameters
     from sim.track import load_track
 
@@ -554,15 +648,32 @@ def command(
         reward_constants=constants,
         randomization=randomization,
         actions=actions,
+        teacher=teacher,
     )
     result = bench_race(settings, progress)
     if png:
         plot_race(result, png)
-    ratio = result["ratio_to_limit"]
-    line = (
-        f"median best robust lap {seconds_text(result['best_robust_lap_s'])}, limit {result['limit_s']:.2f} s"
-        + (f" ({ratio:.2f} x)" if ratio else "")
-        + f", collapses {result['collapses']} ({result['collapses_recovered']} recovered)"
-        + f", late robust lap {seconds_text(result['late_robust_lap_s'])}"
+    if not teacher:
+        return Report(result, [block_line(result, result["limit_s"])])
+    lines = [f"plain: {block_line(result['plain'], result['limit_s'])}"]
+    block = result["teacher"]
+    gap = block["student_gap"]
+    lines.append(
+        f"with a teacher: {block_line(block, result['limit_s'])}; the teachers' own ratio to the limit "
+        + ("-" if block["teacher_ratio_to_limit"] is None else f"{block['teacher_ratio_to_limit']:.2f} x")
+        + ", the students' gap to them "
+        + ("-" if gap is None else f"{gap:.2f} x")
     )
-    return Report(result, [line])
+    return Report(result, lines)
+
+
+def block_line(block: dict[str, Any], limit_s: float) -> str:
+    """One block's medians for the console."""
+    ratio = block["ratio_to_limit"]
+    return (
+        f"median best robust lap {seconds_text(block['best_robust_lap_s'])}, limit {limit_s:.2f} s"
+        + (f" ({ratio:.2f} x)" if ratio else "")
+        + f", robust after {seconds_text(block['time_to_robust_s'])}"
+        + f", collapses {block['collapses']} ({block['collapses_recovered']} recovered)"
+        + f", late robust lap {seconds_text(block['late_robust_lap_s'])}"
+    )

@@ -17,6 +17,7 @@ Env steps to lap are the env steps the learner had consumed when it made that po
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import statistics
 import tempfile
@@ -62,6 +63,10 @@ class BenchTrainSettings:
     ``num_episodes_between_training``, which has no SB3 equivalent)."""
     precision: str = "auto"
     """racer's PPO update arithmetic (``racer train --precision``)."""
+    teacher: bool = False
+    """Each seed also with ``racer train --teacher`` (system ``teacher``): the teacher until its first robust
+    checkpoint (at most a third of ``time_limit_s``), then its student until the student's first; time to lap counts
+    both stages."""
 
 
 @dataclass
@@ -146,12 +151,14 @@ def _point(version: int, env_steps: int, time_s: float, summary: dict, confirmed
     }
 
 
-def run_racer(settings: BenchTrainSettings, seed: int) -> LapRun:
-    """``racer train`` from scratch until an evaluated checkpoint completes every evaluation lap."""
+def run_racer(settings: BenchTrainSettings, seed: int, *, teacher: bool = False) -> LapRun:
+    """``racer train`` from scratch until an evaluated checkpoint completes every evaluation lap; with ``teacher``,
+    ``racer train --teacher`` (``BenchTrainSettings.teacher``), timed from the teacher's start."""
     with EmbeddedRedis() as server, tempfile.TemporaryDirectory(prefix="racer-bench-train-") as store:
         run_id = f"bench-train-s{seed}"
         run, files = build_run(run_id, track=settings.track, hyperparams=settings.hyperparams, seed=seed)
         opts = RunOptions(
+            run_id=run_id,
             workers=settings.workers,
             redis_url=server.url,
             store=store,
@@ -161,15 +168,27 @@ def run_racer(settings: BenchTrainSettings, seed: int) -> LapRun:
             stop_when_robust=1,
             precision=settings.precision,
         )
-        t0 = time.time()
-        run_train(run, opts, files, Console(file=io.StringIO()))
-        wall = time.time() - t0
         runs = RunStore(LocalStore(store))
+        t0 = time.time()
+        if teacher:
+            from racer.teacher import split_time, train_with_teacher
+
+            quiet = Console(file=io.StringIO())
+            teacher_s = split_time(opts, None)
+            train_with_teacher(runs, opts, (run, files), distill={}, teacher_time_s=teacher_s, console=quiet)
+        else:
+            run_train(run, opts, files, Console(file=io.StringIO()))
+        wall = time.time() - t0
         curve = racer_curve(run_id, runs, t0)
         rows = runs.read_metrics(run_id, missing_ok=True)
     batch = int(statistics.median(int(row["batch_steps"]) for row in rows)) if rows else 0
     return _lap_run(
-        "racer", seed, curve, wall_s=wall, batch_steps=batch, made_s=[float(row["time"]) - t0 for row in rows]
+        "teacher" if teacher else "racer",
+        seed,
+        curve,
+        wall_s=wall,
+        batch_steps=batch,
+        made_s=[float(row["time"]) - t0 for row in rows],
     )
 
 
@@ -286,9 +305,17 @@ def summarize_bench(runs: list[LapRun], settings: BenchTrainSettings) -> dict:
     time limit counts as the limit in ``*_bound_s`` (a lower bound), so a system that failed is not flattered.
     """
     out: dict[str, Any] = {"seeds": settings.seeds, "settings": asdict(settings)}
-    for system, prefix in (("racer", ""), ("sb3", "sb3_")):
+    for system, prefix in (("racer", ""), ("sb3", "sb3_"), ("teacher", "")):
         mine = [r for r in runs if r.system == system]
         if not mine:
+            continue
+        if system == "teacher":  # racer train --teacher: a block of its own, the plain run's keys
+            out["teacher"] = summarize_bench(
+                [dataclasses.replace(r, system="racer") for r in mine], dataclasses.replace(settings, teacher=False)
+            )
+            del out["teacher"]["runs"], out["teacher"]["settings"], out["teacher"]["seeds"]
+            if out.get("time_to_lap_bound_s"):
+                out["teacher"]["speedup"] = out["time_to_lap_bound_s"] / out["teacher"]["time_to_lap_bound_s"]
             continue
         lapped = [r for r in mine if r.lapped]
         times = [r.time_to_lap_s for r in lapped]
@@ -316,6 +343,9 @@ def bench_train(settings: BenchTrainSettings, progress: Console | None = None) -
     for seed in settings.seeds:
         runs.append(run_racer(settings, seed))
         _report(runs[-1], settings, progress)
+        if settings.teacher:
+            runs.append(run_racer(settings, seed, teacher=True))
+            _report(runs[-1], settings, progress)
         if settings.sb3:
             n_steps = settings.sb3_n_steps or max(8, round(runs[-1].batch_steps / settings.workers))
             runs.append(run_sb3(settings, seed, n_steps))
@@ -357,6 +387,13 @@ def command(settings: BenchTrainSettings, progress: Console | None = None) -> Re
     shown: list[Table | str] = [table]
     if "speedup_vs_sb3" in result:
         shown.append(f"racer reaches a robust lap {result['speedup_vs_sb3']:.2f}× as fast as SB3 PPO")
+    if "teacher" in result:
+        taught = result["teacher"]
+        shown.append(
+            f"with a teacher (racer train --teacher): time to lap {_whole(taught['time_to_lap_s'])} s, "
+            f"{_whole(taught['env_steps_to_lap'])} env steps, {taught['lapped']} seeds lapped"
+            + (f"; {taught['speedup']:.2f}× as fast as the plain run" if "speedup" in taught else "")
+        )
     return Report(result, shown)
 
 

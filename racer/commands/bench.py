@@ -97,6 +97,9 @@ def train(
         int | None, typer.Option(min=8, help="SB3's steps per env between updates (default: racer's batch / workers).")
     ] = None,
     precision: Annotated[str, typer.Option(help="racer's PPO update arithmetic: auto, fp32, bf16.")] = "auto",
+    teacher: Annotated[
+        bool, typer.Option("--teacher", help="Each seed also with racer train --teacher (the JSON's teacher block).")
+    ] = False,
     json_out: JsonOut = None,
 ) -> None:
     """Time and env steps from scratch to a robust lap (every evaluation lap completed), racer vs SB3 PPO."""
@@ -115,6 +118,7 @@ def train(
         sb3=sb3,
         sb3_n_steps=sb3_n_steps,
         precision=precision,
+        teacher=teacher,
     )
     _show(bench.command(settings, console), json_out)
 
@@ -144,6 +148,12 @@ def race(
         ),
     ] = None,
     png: Annotated[Path | None, typer.Option("--png", help="Learning curves with the limit drawn.")] = None,
+    teacher: Annotated[
+        bool,
+        typer.Option(
+            "--teacher", help="Each seed also with a privileged teacher (racer train --teacher), same budget."
+        ),
+    ] = False,
     json_out: JsonOut = None,
 ) -> None:
     """Learn to race from scratch (4 m/s actions, the racing reward example) and compare with racer limit."""
@@ -162,6 +172,7 @@ def race(
             files=files,
             png=png,
             progress=console,
+            teacher=teacher,
         ),
         json_out,
     )

@@ -7,7 +7,8 @@ from typing import Annotated
 
 import typer
 
-from common.config import PRECISION_HELP
+from common.config import PRECISION_HELP, DistillConfig
+from common.deadline import parse_duration
 from common.defaults import DEFAULT_EVAL_EPISODES, DEFAULT_TRACK, DEFAULT_WORKERS
 from common.errors import OptionError, UserError
 from racer.commands.options import (
@@ -94,6 +95,26 @@ def train(
         str | None,
         typer.Option(help="Start from another run's weights in the store: RUN[:best|latest|N] (DRfC pretrained)."),
     ] = None,
+    teacher: Annotated[
+        bool,
+        typer.Option(
+            "--teacher",
+            help="Train a privileged teacher on the car's state first (run RUN_ID-teacher), then the camera network "
+            "learns to act as it does, then PPO (docs/teacher.md).",
+        ),
+    ] = False,
+    teacher_time: Annotated[
+        str | None,
+        typer.Option(
+            help="--teacher: the teacher's share of the time (90s, 5m).", show_default="a third of --time-limit"
+        ),
+    ] = None,
+    distill_updates: Annotated[
+        int, typer.Option(min=1, help="--teacher: the student's distillation updates before PPO.")
+    ] = DistillConfig.model_fields["updates"].default,
+    fine_tune: Annotated[
+        bool, typer.Option("--fine-tune/--no-fine-tune", help="--teacher: PPO on the reward after distilling.")
+    ] = True,
     view: Annotated[bool, typer.Option("--view", help="Serve racer view's page of the run (docs/view.md).")] = False,
     view_host: Annotated[str, typer.Option(help="--view's address; beyond loopback it needs a token.")] = "127.0.0.1",
     view_port: Annotated[int, typer.Option(min=0, max=65535, help="--view's port; 0 = a free one.")] = 8090,
@@ -145,13 +166,25 @@ def train(
             "worker_settings": worker_settings(worker_track, worker_config, opts.workers, drfc),
         }
     )
+    if teacher and (resume or pretrained):
+        raise OptionError(f"--teacher starts a new run: {'--resume' if resume else '--pretrained'} cannot go with it")
     runs = RunStore(open_store(store, s3_endpoint))
     run, files, notes = open_run(runs, opts)
     for line in notes + ([] if resume else drfc_lines(drfc)):
         console.print(line, highlight=False, soft_wrap=True)
     envs = f" × {envs_per_worker} envs" if envs_per_worker > 1 else ""
     console.print(f"run [bold]{opts.run_id}[/]: {opts.workers} workers{envs} on {run.env.track}, store {store}")
-    status = run_train(run, opts, files, console)
+    if teacher:
+        from racer.teacher import split_time, train_with_teacher
+
+        teacher_s = split_time(opts, parse_duration(teacher_time, "--teacher-time") if teacher_time else None)
+        share_updates = min(DistillConfig.model_fields["teacher_share_updates"].default, distill_updates)
+        settings = {"updates": distill_updates, "teacher_share_updates": share_updates, "fine_tune": fine_tune}
+        status = train_with_teacher(
+            runs, opts, (run, files), distill=settings, teacher_time_s=teacher_s, console=console
+        )[1]
+    else:
+        status = run_train(run, opts, files, console)
     try:
         lines = [done_line(runs, run.run_id, status.get("trained_s", 0.0))]
         for line in [*lines, *run_summary(run.run_id, runs, store, s3_endpoint)]:
