@@ -140,7 +140,8 @@ class WatchPublisher:
 
     def _publish(self, observation: np.ndarray | dict, info: dict, frame_due: bool) -> None:
         camera, lidar = split_observation(observation)
-        jpeg = encode_frame(camera) if frame_due else None
+        # A teacher's env returns the car's state, not a frame: its page shows the pose alone.
+        jpeg = encode_frame(camera) if frame_due and camera.ndim == 3 else None
         frames = self.frames + (jpeg is not None)
         pose = CarPose(
             worker_id=self.worker_id, index=self.index, track=self.track, frames=frames, **_pose_fields(info, lidar)

@@ -13,20 +13,24 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+import redis
 import torch
 from pydantic import ValidationError
 
 from common.action_space import default_action_space, load_action_space
+from common.bus import Bus
 from common.config import DistillConfig, EnvConfig, RunConfig
 from common.defaults import STRAIGHT_TRACK
 from common.errors import UserError
+from common.keys import Keys
 from common.policy import ActorCritic, StatePolicy, label_width, policy_for_run
 from common.privileged import STATE_SIZE, state_vector
-from common.protocol import ProtocolError, decode_segment, encode_segment
+from common.protocol import CarPose, ProtocolError, decode_segment, encode_segment
 from common.weights import load_policy
 from deploy.export import export_onnx
 from model_store import RunStore, open_store
@@ -38,6 +42,7 @@ from racer.teacher import split_time, teacher_checkpoint, teacher_run
 from rollout_worker.onnx_policy import OnnxPolicy
 from rollout_worker.rollouts import Rollouts
 from rollout_worker.teacher import Teacher
+from rollout_worker.watch import WatchPublisher
 from rollout_worker.worker import RolloutWorker, WorkerOptions
 from sim.env import RacerEnv
 from trainer.evaluator import EvalSettings, evaluate_checkpoint
@@ -143,6 +148,26 @@ def test_state_segments_go_raw_and_decode_bit_for_bit() -> None:
     seg.arrays = bad
     with pytest.raises(ProtocolError, match="non_finite"):
         decode_segment(encode_segment(seg), "t", (STATE_SIZE,), N_ACTIONS)
+
+
+def test_a_watched_teacher_worker_publishes_its_pose_and_no_frame(redis_url, run_id) -> None:
+    """racer view on a teacher run: the page asks for the camera, the state env has none; the pose still goes."""
+    client = redis.Redis.from_url(redis_url)
+    bus, keys = Bus(client, run_id), Keys(run_id)
+    env = RacerEnv(config=EnvConfig(track=STRAIGHT_TRACK, observation="state"))
+    observation, info = env.reset(seed=1)
+    publisher = WatchPublisher(bus, "w-0", 0, env.track.name)
+    bus.watch(["w-0"])
+    end = time.monotonic() + 3.0
+    while time.monotonic() < end and client.get(keys.pose("w-0")) is None:
+        observation, _, term, trunc, info = env.step(1)
+        publisher.step(observation, info)
+        if term or trunc:
+            observation, info = env.reset()
+    pose = CarPose.from_json(client.get(keys.pose("w-0")))
+    assert pose.track == STRAIGHT_TRACK and pose.frames == 0 and client.get(keys.frame("w-0")) is None
+    publisher.close()
+    env.close()
 
 
 # --- the student's labelled steps ---------------------------------------------------------------------------------
