@@ -203,6 +203,7 @@ def write_video(
     top-down panel is one track's, so with several tracks each gets its own file, ``path``'s name + ``-<track>``.
     The network acts on ``device``; ``on_progress`` gets a line per trial filmed. Returns the version, the files,
     the frames and what each trial did in the video."""
+    from common.config import FRAME_HEIGHT, FRAME_WIDTH
     from common.sensors import camera_frame_size
     from common.weights import load_policy
     from sim.env import RacerEnv
@@ -217,7 +218,11 @@ def write_video(
     for track in tracks:
         env = RacerEnv(config=evaluation_env_config(env_cfg, settings, track))
         if model is None:
-            frame = camera_frame_size(env.observation_space)
+            frame = (
+                (FRAME_HEIGHT, FRAME_WIDTH)
+                if env_cfg.observation == "state"
+                else camera_frame_size(env.observation_space)
+            )
             model, _ = load_policy(runs, run, env.actions, version, frame=frame, device=device)
         out = path if len(tracks) == 1 else path.with_name(f"{path.stem}-{Path(track).stem}{path.suffix}")
         with EpisodeVideo(out, env.track, env.texture, env.frame) as video:
@@ -261,8 +266,11 @@ def _filmed_trial(video, env, model, run: RunConfig, settings: EvalSettings, *, 
 
     def on_step(observation, info) -> None:
         p = info["params"]
-        # The video shows what the policy sees: the camera (both images of a stereo pair) and the LiDAR.
+        # The video shows what the policy sees: the camera (both images of a stereo pair) and the LiDAR; a teacher
+        # sees the car's state, and its video shows what the camera would have seen.
         camera, lidar = split_observation(observation)
+        if camera.ndim != 3:
+            camera = env.camera_frame(info["pose"])
         video.add(
             camera,
             info["pose"],

@@ -36,6 +36,7 @@ from deploy.export import export_onnx
 from model_store import RunStore, open_store
 from model_store.localize import localize_env
 from model_store.runs import TEACHER_FILE, TEACHER_META_FILE
+from racer.evaluate import write_video
 from racer.options import RunOptions
 from racer.runconfig import build_run
 from racer.teacher import split_time, teacher_checkpoint, teacher_run
@@ -259,6 +260,10 @@ def test_a_teacher_trains_on_states_and_a_student_distills_it_then_runs_ppo(redi
     record = evaluate_checkpoint(runs, teacher_cfg, env_cfg, 1, EvalSettings(episodes=1, both_directions=False))
     assert record["episodes"] == 1 and record["trials"][0]["steps"] >= 1
     assert teacher_checkpoint(runs, teacher_id) == 1  # no best yet: the latest trained version
+    # racer eval --video films a teacher's trial with what the camera would have seen.
+    settings = EvalSettings(episodes=1, both_directions=False)
+    video = write_video(runs, teacher_cfg, env_cfg, 1, settings, path=tmp_path / "teacher.mp4")
+    assert video["frames"] >= 2 and (tmp_path / "teacher.mp4").stat().st_size > 0
     # A teacher cannot be exported to a car: it needs the car's state.
     with pytest.raises(UserError, match="privileged teacher"):
         export_onnx(runs, teacher_id, "latest", tmp_path / "t.onnx")
