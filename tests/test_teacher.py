@@ -309,7 +309,8 @@ def test_racer_train_teacher_trains_both_stages_end_to_end(tmp_path):
     assert runs.read_file("tt", TEACHER_FILE) == runs.load_checkpoint("tt-teacher", int(version))[0]
     assert runs.newest_whole("tt") >= 1, out.stdout[-2000:]
     assert "teacher tt-teacher" in out.stdout and "student tt" in out.stdout
-    refused = subprocess.run([*cmd[:4], "--resume", "--run-id", "tt"], capture_output=True, text=True, timeout=120)
+    again = [*cmd[:5], "--resume", "--run-id", "tt", "--store", str(store)]
+    refused = subprocess.run(again, capture_output=True, text=True, timeout=120)
     assert refused.returncode == 2 and "--teacher starts a new run" in refused.stderr
 
 
