@@ -328,9 +328,13 @@ def _figures(best: float | None, robust_s: float | None, teacher_best: float | N
         "drift_after_best": 1.0,
         "collapses": 1,
         "collapses_recovered": 0,
+        "ratio_at_minutes": {
+            "5": None if best is None else best / 6.0 + 0.1,
+            "10": None if best is None else best / 6.0,
+        },
     }
     if teacher_best is not None:
-        figures["teacher"] = {"ratio_to_limit": teacher_best / 6.0}
+        figures["teacher"] = {"ratio_to_limit": teacher_best / 6.0, "time_to_robust_s": 30.0, "env_steps": 90000}
         figures["student_gap"] = None if best is None else best / teacher_best
     return figures
 
@@ -345,6 +349,21 @@ def test_bench_race_sets_the_teacher_block_beside_the_plain_one() -> None:
     assert taught["median_ratio_to_limit"] == pytest.approx(6.9 / 6.0) and taught["time_to_robust_s"] == 120.0
     assert taught["teacher_ratio_to_limit"] == pytest.approx(6.3 / 6.0)
     assert taught["student_gap"] == pytest.approx(1.1)  # 6.6/6.0, 7.2/6.3 = 1.143, 6.9/6.9: the median
+    assert taught["teacher_time_to_robust_s"] == 30.0 and taught["teacher_env_steps"] == 90000
+    assert taught["median_ratio_at_minutes"] == pytest.approx({"5": 6.9 / 6.0 + 0.1, "10": 6.9 / 6.0})
+
+
+def test_the_best_robust_lap_is_read_at_5_10_and_30_minutes() -> None:
+    from racer.bench.race import ratio_at_minutes
+
+    curve = [
+        {"time_s": 100.0, "completion": 1.0, "mean_lap_s": 9.0},
+        {"time_s": 250.0, "completion": 0.9, "mean_lap_s": 6.0},  # not robust: not counted
+        {"time_s": 290.0, "completion": 1.0, "mean_lap_s": 7.5},
+        {"time_s": 540.0, "completion": 1.0, "mean_lap_s": 6.6},
+    ]
+    assert ratio_at_minutes(curve, 6.0, 600.0) == {"5": 7.5 / 6.0, "10": 6.6 / 6.0}  # 30 min: past the budget
+    assert ratio_at_minutes(curve[1:2], 6.0, 1800.0) == {"5": None, "10": None, "30": None}
 
 
 def test_bench_train_reports_the_teacher_s_time_to_lap_and_its_speedup() -> None:

@@ -16,14 +16,12 @@ generator, global gradient-norm clipping, an optional fp16 loss scaler, and the 
 
 from __future__ import annotations
 
-import math
-
 import torch
 from torch import nn
 from torch.distributions import Distribution, kl_divergence
 
 from common.policy import label_distribution
-from trainer.ppo import PPOBatch, ValueLossKind, value_loss
+from trainer.ppo import PPOBatch, ValueLossKind, gradient_step, value_loss, with_amp_skipped
 
 AGREEMENT_SHARE = 0.1
 """A continuous student's mean agrees with the teacher's when every dimension is within this share of the action
@@ -91,17 +89,7 @@ def distill_step(
     kl = kl_to_teacher(teacher, model.action_distribution(params)).mean()
     v_loss = value_loss(values, mb.returns, loss_type)
     total = kl + value_coef * v_loss
-    optimizer.zero_grad(set_to_none=True)
-    if scaler is None:
-        total.backward()
-        grad_norm = nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
-        optimizer.step()
-    else:
-        scaler.scale(total).backward()
-        scaler.unscale_(optimizer)  # so that the clipping and grad_norm see the true gradients
-        grad_norm = nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
-        scaler.step(optimizer)  # skipped when the unscaled gradients hold an inf or a NaN
-        scaler.update()
+    grad_norm = gradient_step(model, optimizer, total, max_grad_norm=max_grad_norm, scaler=scaler)
     agreement = greedy_agreement(mb.teacher, params.detach(), model.action_kind, _agreement_tolerance(model))
     # .item() last: on a GPU it waits for the device, and here the whole step has been queued before it does.
     stats = {
@@ -110,11 +98,7 @@ def distill_step(
         "grad_norm": grad_norm.item(),
         "agreement": agreement.item(),
     }
-    if scaler is not None:
-        skipped = not math.isfinite(stats["grad_norm"])
-        stats["grad_norm"] = 0.0 if skipped else stats["grad_norm"]
-        stats["amp_skipped"] = float(skipped)
-    return stats
+    return with_amp_skipped(stats, scaler)
 
 
 def distill(

@@ -331,17 +331,7 @@ def minibatch_step(
     v_loss = value_loss(values, mb.returns, loss_type)
     ent = entropy_bonus(entropy)
     total = pg_loss + value_coef * v_loss - beta_entropy * ent
-    optimizer.zero_grad(set_to_none=True)
-    if scaler is None:
-        total.backward()
-        grad_norm = nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
-        optimizer.step()
-    else:
-        scaler.scale(total).backward()
-        scaler.unscale_(optimizer)
-        grad_norm = nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
-        scaler.step(optimizer)  # skipped when the unscaled gradients hold an inf or a NaN
-        scaler.update()
+    grad_norm = gradient_step(model, optimizer, total, max_grad_norm=max_grad_norm, scaler=scaler)
     # .item() last: on a GPU it waits for the device, and here the whole step has been queued before it does.
     stats = {
         "policy_loss": pg_loss.item(),
@@ -351,6 +341,37 @@ def minibatch_step(
         "clip_fraction": clip_fraction.item(),
         "grad_norm": grad_norm.item(),
     }
+    return with_amp_skipped(stats, scaler)
+
+
+def gradient_step(
+    model: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    loss: torch.Tensor,
+    *,
+    max_grad_norm: float,
+    scaler: torch.amp.GradScaler | None = None,
+) -> torch.Tensor:
+    """Backward ``loss``, clip the gradients' global norm to ``max_grad_norm`` and step ``optimizer``; the norm
+    before clipping. With a ``scaler`` (fp16) the loss is scaled and the gradients unscaled before clipping, so the
+    clipping and the norm see the true gradients, and the scaler skips a step whose gradients overflowed."""
+    optimizer.zero_grad(set_to_none=True)
+    if scaler is None:
+        loss.backward()
+        grad_norm = nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
+        optimizer.step()
+        return grad_norm
+    scaler.scale(loss).backward()
+    scaler.unscale_(optimizer)
+    grad_norm = nn.utils.clip_grad_norm_(model.parameters(), max_grad_norm)
+    scaler.step(optimizer)  # skipped when the unscaled gradients hold an inf or a NaN
+    scaler.update()
+    return grad_norm
+
+
+def with_amp_skipped(stats: dict[str, float], scaler: torch.amp.GradScaler | None) -> dict[str, float]:
+    """A step's statistics with, under a ``scaler``, ``amp_skipped`` (1 where its gradients overflowed and the scaler
+    skipped it) and such a step's ``grad_norm`` counted as 0, so that the means stay finite."""
     if scaler is not None:
         skipped = not math.isfinite(stats["grad_norm"])
         stats["grad_norm"] = 0.0 if skipped else stats["grad_norm"]

@@ -306,7 +306,25 @@ def seed_figures(curve: list[dict], limit_s: float, budget_s: float | None = Non
         "late_robust_lap_s": late,
         "drift_after_best": None if late is None or best is None else late / best,
         "best_command_speeds": None if best_point is None else best_point.get("command_speeds"),
+        "ratio_at_minutes": ratio_at_minutes(curve, limit_s, budget_s),
     }
+
+
+CHECKPOINT_MINUTES = (5, 10, 30)
+"""The times the best robust lap so far is read at (``ratio_at_minutes``), minutes into the budget."""
+
+
+def ratio_at_minutes(curve: list[dict], limit_s: float, budget_s: float | None = None) -> dict[str, float | None]:
+    """The best robust lap of the checkpoints made in the first 5, 10 and 30 minutes over ``limit_s``, for each of
+    those times within ``budget_s`` (the curve's span where it is not given); None where none was robust yet."""
+    end = budget_s if budget_s is not None else (curve[-1]["time_s"] if curve else 0.0)
+    out: dict[str, float | None] = {}
+    for minutes in CHECKPOINT_MINUTES:
+        if minutes * 60.0 > end + 1e-6:
+            continue
+        laps = [p["mean_lap_s"] for p in curve if p["completion"] >= 1.0 and p["time_s"] <= minutes * 60.0]
+        out[str(minutes)] = min(laps) / limit_s if laps else None
+    return out
 
 
 def late_robust_lap(curve: list[dict], budget_s: float | None = None) -> float | None:
@@ -429,6 +447,7 @@ def run_seed(
     curve, teacher_curve, guard = train_teacher_student(run, files, **budget, read_curve=read_curve)
     figures = {**seed_figures(curve, limit_s, settings.minutes * 60.0), "seed": seed, **guard, "curve": curve}
     own = seed_figures(teacher_curve, limit_s)
+    own["env_steps"] = teacher_curve[-1]["env_steps"] if teacher_curve else 0  # the state steps it learnt from
     student, best = figures["best_robust_lap_s"], own["best_robust_lap_s"]
     figures["teacher"] = {**own, "curve": teacher_curve}
     figures["student_gap"] = None if student is None or best is None else student / best
@@ -529,9 +548,11 @@ def seed_block(seeds: list[dict[str, Any]]) -> dict[str, Any]:
     """The medians, sums and seeds of one kind of run (plain, or with a teacher); ``median_ratio_to_limit`` is
     ``ratio_to_limit`` (already the median) under the name ``--teacher``'s comparison reads."""
     medians = {key: median_known([s[key] for s in seeds]) for key in SEED_MEDIANS}
+    at = sorted({m for s in seeds for m in s["ratio_at_minutes"]}, key=float)
     return {
         **medians,
         "median_ratio_to_limit": medians["ratio_to_limit"],
+        "median_ratio_at_minutes": {m: median_known([s["ratio_at_minutes"].get(m) for s in seeds]) for m in at},
         "env_steps_to_robust": median_known([s["env_steps_to_robust"] for s in seeds]),
         "collapses": sum(s["collapses"] for s in seeds),
         "collapses_recovered": sum(s["collapses_recovered"] for s in seeds),
@@ -547,6 +568,8 @@ def teacher_block(seeds: list[dict[str, Any]]) -> dict[str, Any]:
     return {
         **seed_block(seeds),
         "teacher_ratio_to_limit": median_known([s["teacher"]["ratio_to_limit"] for s in seeds]),
+        "teacher_time_to_robust_s": median_known([s["teacher"]["time_to_robust_s"] for s in seeds]),
+        "teacher_env_steps": median_known([s["teacher"]["env_steps"] for s in seeds]),
         "student_gap": median_known([s["student_gap"] for s in seeds]),
     }
 
