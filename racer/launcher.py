@@ -314,6 +314,7 @@ def _watch(
                 time.sleep(0.25)
         except KeyboardInterrupt:
             console.print("stopping (Ctrl-C or SIGTERM)…")
+            status = {**(status or {}), "interrupted": True}
     if line:
         last = line if live is not None else progress_line(time.monotonic() - started, opts.time_limit_s, line)
         console.print(last, highlight=False, soft_wrap=True)

@@ -83,6 +83,9 @@ def train_with_teacher(
     teacher_opts = opts.model_copy(update={"run_id": teacher_id, "time_limit_s": teacher_time_s, "deadline": None})
     console.print(f"teacher [bold]{teacher_id}[/]: the car's state, no camera, for {teacher_time_s:.0f} s")
     teacher_status = run_train(teacher_run(run.model_copy(update={"run_id": teacher_id})), teacher_opts, files, console)
+    if teacher_status.get("interrupted"):  # Ctrl-C or SIGTERM stops the whole command, not just its first stage
+        console.print(f"stopped in the teacher's stage: no student trained (the teacher is run {teacher_id})")
+        return teacher_status, {}
     version = teacher_checkpoint(runs, teacher_id)
     left = None if opts.time_limit_s is None else max(opts.time_limit_s - (time.monotonic() - started), 1.0)
     student = run.model_copy(update={"distill": DistillConfig(teacher=f"{teacher_id}:{version}", **distill)})

@@ -11,6 +11,7 @@ versions, then runs PPO.
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import time
@@ -384,3 +385,19 @@ def test_bench_train_reports_the_teacher_s_time_to_lap_and_its_speedup() -> None
     assert out["teacher"]["time_to_lap_s"] == 90.0 and out["teacher"]["lapped"] == "3/3"
     assert out["teacher"]["speedup"] == pytest.approx(300.0 / 90.0)
     assert len(out["runs"]) == 6 and "runs" not in out["teacher"]
+
+
+@pytest.mark.slow(reason="starts racer train --teacher and stops it: about 30 s of real processes")
+def test_ctrl_c_in_the_teacher_s_stage_stops_the_whole_command(tmp_path):
+    store = tmp_path / "store"
+    cmd = [sys.executable, "-m", "racer", "train", "--teacher", "--time-limit", "300s", "--teacher-time", "200s"]
+    cmd += ["--workers", "1", "--track", STRAIGHT_TRACK, "--store", str(store), "--run-id", "cc", "--no-eval"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    runs = RunStore(open_store(str(store)))
+    end = time.monotonic() + 120
+    while time.monotonic() < end and not (runs.newest_whole("cc-teacher") or 0) >= 1:
+        time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=120)
+    assert "teacher cc-teacher" in out and "student cc:" not in out, out[-2000:]
+    assert "stopped in the teacher's stage" in out and runs.newest_whole("cc") is None
